@@ -1,0 +1,1 @@
+//! Facility driver: states in, display LUT, screen, serial sync, frame log.

@@ -1,0 +1,26 @@
+//! # optistim
+//!
+//! A radiometrically exact renderer of planets and moons, and the driver of a
+//! hardware-in-the-loop optical facility for vision-based navigation.
+//!
+//! The modules follow the data flow of one frame:
+//!
+//! | module | owns |
+//! |---|---|
+//! | [`scene`] | what is out there: camera, body, Sun, poses; the TOML scene file |
+//! | [`radiometry`] | how light is made and reflected: solar spectra, reflectance models, band integrals |
+//! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
+//! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
+//! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
+//!
+//! Conventions (SI units, OpenCV camera frame, scalar-first quaternions,
+//! pixel centres at +0.5) are described in `docs/CONVENTIONS.md`.
+
+pub mod error;
+pub mod facility;
+pub mod radiometry;
+pub mod render;
+pub mod scene;
+pub mod validate;
+
+pub use error::{Error, Result};

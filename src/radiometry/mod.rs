@@ -1,0 +1,12 @@
+//! Radiometry: how sunlight reaches a surface point and how much of it is
+//! scattered toward the camera.
+//!
+//! - [`geometry`]: the photometric angles of one scattering event;
+//! - [`reflectance`]: the reflection models (BRDFs) named in scene files;
+//! - [`spectrum`]: solar spectra, detector response tables and band integrals.
+
+pub mod geometry;
+pub mod reflectance;
+pub mod spectrum;
+
+pub use geometry::ScatteringGeometry;

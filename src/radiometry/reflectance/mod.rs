@@ -1,0 +1,1 @@
+//! Reflection models (BRDFs) named in scene files.

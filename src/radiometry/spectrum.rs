@@ -1,0 +1,1 @@
+//! Solar spectra, detector response tables and band integrals.

@@ -1,0 +1,1 @@
+//! The paper's method: surface caps, power coefficients PF_i, gridding, detector chain.

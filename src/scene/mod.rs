@@ -1,0 +1,1 @@
+//! Scene description: camera, body, Sun and poses.
