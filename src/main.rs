@@ -1,1 +1,83 @@
-fn main() {}
+//! `optistim` command line: render, run, bench, validate.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod cli;
+
+/// Radiometrically exact renderer of planets and moons, and driver of a
+/// hardware-in-the-loop optical facility.
+#[derive(Parser)]
+#[command(version, about)]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a scene file to radiance.tiff, electrons.tiff, dn.png and
+    /// summary.json.
+    Render {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Output directory.
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+        /// Override the caps per pixel of the scene file.
+        #[arg(long)]
+        caps_per_pixel: Option<f64>,
+    },
+    /// Time the renderer against its converged reference (speed vs error).
+    Bench {
+        /// Scene file (TOML); default: the benchmark Moon.
+        #[arg(long, default_value = "configs/moon_bench.toml")]
+        scene: PathBuf,
+        /// Phase angles [deg].
+        #[arg(long, value_delimiter = ',', default_value = "30,105")]
+        phases: Vec<f64>,
+        /// Densities (caps per pixel) to time.
+        #[arg(long, value_delimiter = ',', default_value = "0.5,1,1.5,2,3")]
+        densities: Vec<f64>,
+        /// Repetitions per point (median reported).
+        #[arg(long, default_value_t = 30)]
+        repeats: usize,
+        /// Write the table as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("OPTISTIM_LOG")
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let args = Args::parse();
+    let result = match args.command {
+        Command::Render {
+            scene,
+            out,
+            caps_per_pixel,
+        } => cli::render(&scene, &out, caps_per_pixel),
+        Command::Bench {
+            scene,
+            phases,
+            densities,
+            repeats,
+            json,
+        } => cli::bench(&scene, &phases, &densities, repeats, json.as_deref()),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("optistim: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

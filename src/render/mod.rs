@@ -1,1 +1,290 @@
-//! The paper's method: surface caps, power coefficients PF_i, gridding, detector chain.
+//! The paper's method. A [`Renderer`] owns the pixel grid of one camera (or
+//! of the facility screen seen through the collimator) and, for each state,
+//! turns the body into a point cloud of surface caps with power coefficients
+//! PF_i ([`caps`]), integrates each cap ([`closed_form`]), and grids it onto
+//! the pixels its footprint covers. [`detector`] then applies the paper's
+//! Eq. 2, and [`output`] writes the files of `optistim render`.
+//!
+//! The renderer's primary product is the *collected flux* image: for each
+//! pixel, Σ_i ∫_cap f_r μ0 (AU/d_sun)² μ / d² dS, the irradiance the pixel's
+//! caps produce at the camera per unit solar irradiance at 1 au. Radiance,
+//! electrons and DN follow from it with scalars from the band integrals.
+
+pub mod caps;
+pub mod closed_form;
+pub mod detector;
+pub mod lune;
+pub mod output;
+
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::scene::{Body, Pinhole, State};
+use caps::{Cell, Frame, Leaf, Rect, Weight};
+use lune::Lune;
+
+/// How finely the body is sampled (the `[render]` table of a scene file).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderSettings {
+    /// Caps per pixel along each image axis. Omitted: [`DEFAULT_DENSITY`],
+    /// chosen from the benchmark's error curve (see BENCHMARKS.md).
+    pub caps_per_pixel: Option<f64>,
+    /// Minimum number of caps along each axis of the lit, visible lune,
+    /// whatever the apparent size: keeps the total flux of unresolved bodies
+    /// exact to the flux tolerance.
+    pub min_caps: usize,
+    /// `exact` (finite-distance geometry for every cap) or `distant` (the
+    /// paper's far-field limit: one view and Sun direction for all caps).
+    pub geometry: GeometryMode,
+    /// Sub-bands for spectrally varying reflectance; omitted: automatic.
+    pub sub_bands: Option<usize>,
+}
+
+/// Default caps per pixel along each axis.
+pub const DEFAULT_DENSITY: f64 = 2.0;
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            caps_per_pixel: None,
+            min_caps: 64,
+            geometry: GeometryMode::Exact,
+            sub_bands: None,
+        }
+    }
+}
+
+impl RenderSettings {
+    /// Reject out-of-range values, naming the key.
+    pub fn check(&self) -> Result<()> {
+        if let Some(d) = self.caps_per_pixel {
+            if !(d.is_finite() && d > 0.0 && d <= 64.0) {
+                return Err(Error::invalid(
+                    "render.caps_per_pixel",
+                    "must be in (0, 64]",
+                ));
+            }
+        }
+        if self.min_caps == 0 || self.min_caps > 100_000 {
+            return Err(Error::invalid("render.min_caps", "must be in 1..=100000"));
+        }
+        if let Some(n) = self.sub_bands {
+            if n == 0 || n > 1000 {
+                return Err(Error::invalid("render.sub_bands", "must be in 1..=1000"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Caps per pixel in use.
+    pub fn density(&self) -> f64 {
+        self.caps_per_pixel.unwrap_or(DEFAULT_DENSITY)
+    }
+}
+
+/// Geometry of the cap integrals.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum GeometryMode {
+    /// Each cap has its own view vector, Sun vector and distances; the
+    /// visible cap shrinks at close range.
+    Exact,
+    /// The paper's distant-observer form (far-field limit).
+    Distant,
+}
+
+/// What one call of [`Renderer::render_flux`] did.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct RenderStats {
+    /// Caps integrated (inside or near the field of view).
+    pub caps: u64,
+    /// Leaf cells.
+    pub cells: usize,
+    /// Σ PF_i of the integrated caps, per unit solar irradiance at 1 au:
+    /// the body's irradiance at the camera from the caps near the field.
+    pub total_flux: f64,
+    /// Phase angle at the body centre [rad].
+    pub phase_angle: f64,
+    /// Pixels that may hold signal.
+    #[serde(skip)]
+    pub roi: Rect,
+}
+
+/// Renders bodies onto one pixel grid. Buffers are kept between calls and
+/// only grow up to the image size, so a frame loop does not allocate.
+pub struct Renderer {
+    camera: Pinhole,
+    flux: Vec<f32>,
+    dirty: Rect,
+    workers: Vec<(Vec<f32>, [Vec<(f64, f64)>; 2])>,
+    leaves: Vec<Leaf>,
+    stack: Vec<Cell>,
+    chunks: Vec<std::ops::Range<usize>>,
+}
+
+impl Renderer {
+    /// Renderer for a pixel grid.
+    pub fn new(camera: Pinhole) -> Self {
+        let n = camera.width * camera.height;
+        let threads = rayon::current_num_threads().max(1);
+        Self {
+            camera,
+            flux: vec![0.0; n],
+            dirty: Rect::default(),
+            workers: (0..threads)
+                .map(|_| (Vec::new(), [Vec::new(), Vec::new()]))
+                .collect(),
+            leaves: Vec::new(),
+            stack: Vec::new(),
+            chunks: Vec::new(),
+        }
+    }
+
+    /// The pixel grid.
+    pub fn camera(&self) -> &Pinhole {
+        &self.camera
+    }
+
+    /// The collected-flux image of the last render (row-major), zero outside
+    /// its ROI.
+    pub fn flux(&self) -> &[f32] {
+        &self.flux
+    }
+
+    /// Render the body's collected flux per unit solar irradiance at 1 au.
+    /// `albedo` overrides the model's albedo parameter where there is no
+    /// map (used for per-sub-band spectral albedo).
+    pub fn render_flux(
+        &mut self,
+        body: &Body,
+        state: &State,
+        settings: &RenderSettings,
+        albedo: Option<f64>,
+    ) -> RenderStats {
+        // Clear what the previous frame wrote.
+        let w = self.camera.width;
+        let dirty = self.dirty;
+        for row in dirty.y0..dirty.y1 {
+            self.flux[row * w + dirty.x0..row * w + dirty.x1].fill(0.0);
+        }
+        self.dirty = Rect::default();
+
+        let camera_rel = state.camera_position - state.body_position;
+        let sun_rel = state.sun_position - state.body_position;
+        let distant = settings.geometry == GeometryMode::Distant;
+        let lune = Lune::new(camera_rel, sun_rel, body.radius, distant);
+        let mut stats = RenderStats {
+            phase_angle: lune.alpha,
+            ..Default::default()
+        };
+        if lune.empty {
+            return stats;
+        }
+        let to_camera = state.camera_attitude.inverse();
+        let to_body = state.body_attitude.inverse();
+        let frame = Frame {
+            lune,
+            camera: &self.camera,
+            axes_cam: [to_camera * lune.x, to_camera * lune.y, to_camera * lune.z],
+            camera_cam: to_camera * camera_rel,
+            axes_body: [to_body * lune.x, to_body * lune.y, to_body * lune.z],
+            body,
+            albedo: albedo.unwrap_or_else(|| body.reflectance.albedo()),
+            weight: Weight::for_model(&body.reflectance),
+            radius: body.radius,
+            density: settings.density(),
+            min_caps: settings.min_caps as f64,
+            distant,
+        };
+
+        // Lay out the caps: recursive split with culling.
+        self.leaves.clear();
+        self.stack.clear();
+        self.stack.push(Cell {
+            t0: 0.0,
+            t1: 1.0,
+            s0: 0.0,
+            s1: 1.0,
+            depth: 0,
+        });
+        let mut roi = Rect::default();
+        while let Some(cell) = self.stack.pop() {
+            if let Some(r) = frame.visit(cell, &mut self.stack, &mut self.leaves) {
+                roi = roi.union(&r);
+            }
+        }
+        stats.cells = self.leaves.len();
+        stats.roi = roi;
+        if self.leaves.is_empty() || roi.is_empty() {
+            return stats;
+        }
+
+        // Balance the leaves over the workers by cap count.
+        let caps: u64 = self
+            .leaves
+            .iter()
+            .map(|l| l.n_t as u64 * l.n_s as u64)
+            .sum();
+        stats.caps = caps;
+        let k = self.workers.len();
+        self.chunks.clear();
+        let mut start = 0;
+        let mut acc = 0u64;
+        for (i, leaf) in self.leaves.iter().enumerate() {
+            acc += leaf.n_t as u64 * leaf.n_s as u64;
+            if acc * k as u64 >= caps * (self.chunks.len() as u64 + 1) && self.chunks.len() + 1 < k
+            {
+                self.chunks.push(start..i + 1);
+                start = i + 1;
+            }
+        }
+        self.chunks.push(start..self.leaves.len());
+
+        let area = roi.width() * roi.height();
+        let leaves = &self.leaves;
+        stats.total_flux = self
+            .workers
+            .par_iter_mut()
+            .zip(self.chunks.par_iter())
+            .map(|(worker, range)| {
+                let (buf, rows) = worker;
+                buf.clear();
+                buf.resize(area, 0.0);
+                leaves[range.clone()]
+                    .iter()
+                    .map(|leaf| frame.grid_leaf(leaf, buf, &roi, rows))
+                    .sum::<f64>()
+            })
+            .sum();
+
+        // Reduce the workers' buffers into the image.
+        let used = self.chunks.len();
+        let workers = &self.workers[..used];
+        let rw = roi.width();
+        self.flux
+            .par_chunks_mut(w)
+            .enumerate()
+            .skip(roi.y0)
+            .take(roi.height())
+            .for_each(|(row, out)| {
+                let local = (row - roi.y0) * rw;
+                let out = &mut out[roi.x0..roi.x1];
+                out.copy_from_slice(&workers[0].0[local..local + rw]);
+                for buf in &workers[1..] {
+                    for (o, v) in out.iter_mut().zip(&buf.0[local..local + rw]) {
+                        *o += v;
+                    }
+                }
+            });
+        self.dirty = roi;
+        stats
+    }
+}
+
+/// Unit vector from the camera to the body centre, in the camera frame.
+pub fn line_of_sight(state: &State) -> DVec3 {
+    (state.camera_attitude.inverse() * (state.body_position - state.camera_position)).normalize()
+}

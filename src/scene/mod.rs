@@ -1,1 +1,504 @@
-//! Scene description: camera, body, Sun and poses.
+//! The scene: what is out there and where. Camera (geometry and detector),
+//! Sun spectrum, body (shape, reflectance, maps) and the poses of all three.
+//!
+//! [`Scene::from_file`] reads the TOML scene file documented in
+//! `docs/SCENE.md`; unknown and missing keys are errors naming the key and
+//! the file, and every value is checked before anything is rendered.
+
+pub mod camera;
+pub mod maps;
+
+use std::path::{Path, PathBuf};
+
+use glam::{DQuat, DVec3};
+use serde::Deserialize;
+
+use crate::error::{Error, Result};
+use crate::radiometry::reflectance::{Reflectance, ReflectanceConfig};
+use crate::radiometry::spectrum::{Response, SolarSpectrum, Table};
+use crate::render::RenderSettings;
+pub use camera::Pinhole;
+pub use maps::{EquirectMap, NormalMap};
+
+/// Camera: pinhole geometry plus the detector chain of the paper's Eq. 2.
+#[derive(Clone, Debug)]
+pub struct Camera {
+    /// Projection geometry.
+    pub pinhole: Pinhole,
+    /// Pixel pitch [m].
+    pub pixel_pitch: f64,
+    /// Focal length [m].
+    pub focal_length: f64,
+    /// Focal ratio (focal length / aperture diameter).
+    pub f_number: f64,
+    /// Exposure time [s].
+    pub exposure: f64,
+    /// Full-well capacity [e⁻].
+    pub full_well: f64,
+    /// ADC bits.
+    pub bits: u32,
+    /// Gain [DN/e⁻].
+    pub gain: f64,
+    /// Waveband [m].
+    pub band: [f64; 2],
+    /// Quantum efficiency.
+    pub quantum_efficiency: Response,
+    /// Optical transmission.
+    pub transmission: Response,
+}
+
+impl Camera {
+    /// Entrance pupil area [m²].
+    pub fn pupil_area(&self) -> f64 {
+        let d = self.focal_length / self.f_number;
+        std::f64::consts::PI * d * d / 4.0
+    }
+
+    /// Largest DN the ADC outputs.
+    pub fn max_dn(&self) -> f64 {
+        (2f64.powi(self.bits as i32) - 1.0).max(1.0)
+    }
+}
+
+/// Surface relief: displacement (height) and shading normals.
+#[derive(Clone, Debug, Default)]
+pub struct Relief {
+    /// Height above the reference sphere [m], and its derivatives with
+    /// respect to latitude and longitude [m/rad].
+    pub height: Option<(EquirectMap, EquirectMap, EquirectMap)>,
+    /// Tangent-space shading normals.
+    pub normals: Option<NormalMap>,
+}
+
+/// A spherical body.
+#[derive(Clone, Debug)]
+pub struct Body {
+    /// Reference radius [m].
+    pub radius: f64,
+    /// Reflection model.
+    pub reflectance: Reflectance,
+    /// Per-point value of the model's albedo parameter.
+    pub albedo_map: Option<EquirectMap>,
+    /// Displacement and normal maps.
+    pub relief: Relief,
+}
+
+/// Poses of body, camera and Sun in the world (inertial) frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct State {
+    /// Body centre [m].
+    pub body_position: DVec3,
+    /// Rotation of body-fixed vectors into the world frame.
+    pub body_attitude: DQuat,
+    /// Camera centre [m].
+    pub camera_position: DVec3,
+    /// Rotation of camera vectors (x right, y down, z boresight) into the
+    /// world frame.
+    pub camera_attitude: DQuat,
+    /// Sun centre [m].
+    pub sun_position: DVec3,
+}
+
+impl State {
+    /// Reject non-finite vectors, a camera inside the body and a Sun inside
+    /// the body; `field` prefixes the names in the error.
+    pub fn check(&self, radius: f64, field: &str) -> Result<()> {
+        let vectors = [
+            ("body_position", self.body_position),
+            ("camera_position", self.camera_position),
+            ("sun_position", self.sun_position),
+        ];
+        for (name, v) in vectors {
+            if !v.is_finite() {
+                return Err(Error::invalid(format!("{field}.{name}"), "not finite"));
+            }
+        }
+        for (name, q) in [
+            ("body_attitude", self.body_attitude),
+            ("camera_attitude", self.camera_attitude),
+        ] {
+            if !q.is_finite() || (q.length() - 1.0).abs() > 1e-6 {
+                return Err(Error::invalid(
+                    format!("{field}.{name}"),
+                    "not a finite unit quaternion",
+                ));
+            }
+        }
+        let camera_range = (self.camera_position - self.body_position).length();
+        if camera_range <= radius {
+            return Err(Error::invalid(
+                format!("{field}.camera_position"),
+                format!("camera is inside the body ({camera_range} m from its centre, radius {radius} m)"),
+            ));
+        }
+        if (self.sun_position - self.body_position).length() <= radius {
+            return Err(Error::invalid(
+                format!("{field}.sun_position"),
+                "Sun is inside the body",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Scalar-first quaternion [w, x, y, z] to a unit rotation; rejects zero and
+/// non-finite quaternions, naming `field`.
+pub fn quaternion(wxyz: [f64; 4], field: &str) -> Result<DQuat> {
+    if wxyz.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(
+            field,
+            "quaternion has a non-finite component",
+        ));
+    }
+    let q = DQuat::from_xyzw(wxyz[1], wxyz[2], wxyz[3], wxyz[0]);
+    let norm = q.length();
+    if norm < 1e-9 {
+        return Err(Error::invalid(field, "quaternion has zero norm"));
+    }
+    Ok(q / norm)
+}
+
+/// A complete scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Camera.
+    pub camera: Camera,
+    /// Solar spectrum at 1 au.
+    pub sun: SolarSpectrum,
+    /// The body.
+    pub body: Body,
+    /// Poses.
+    pub state: State,
+    /// Sampling settings.
+    pub render: RenderSettings,
+}
+
+// ---------------------------------------------------------------- TOML file
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    camera: CameraFile,
+    sun: SunFile,
+    body: BodyFile,
+    state: StateFile,
+    #[serde(default)]
+    render: RenderSettings,
+}
+
+/// `[camera]` table of a scene file.
+#[derive(Deserialize, Clone, Debug)]
+#[serde(deny_unknown_fields)]
+pub struct CameraFile {
+    resolution: [usize; 2],
+    pixel_pitch: f64,
+    focal_length: Option<f64>,
+    fov_deg: Option<f64>,
+    principal_point: Option<[f64; 2]>,
+    f_number: f64,
+    exposure: f64,
+    full_well: f64,
+    bits: u32,
+    #[serde(default)]
+    gain: f64,
+    band: [f64; 2],
+    #[serde(default = "unit_response")]
+    quantum_efficiency: ResponseFile,
+    #[serde(default = "unit_response")]
+    transmission: ResponseFile,
+}
+
+#[derive(Deserialize, Clone, Debug)]
+#[serde(untagged)]
+enum ResponseFile {
+    Constant(f64),
+    Table(PathBuf),
+}
+
+fn unit_response() -> ResponseFile {
+    ResponseFile::Constant(1.0)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SunFile {
+    spectrum: String,
+    temperature: Option<f64>,
+    irradiance_1au: Option<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BodyFile {
+    radius: f64,
+    reflectance: ReflectanceConfig,
+    albedo_map: Option<AlbedoMapFile>,
+    displacement_map: Option<DisplacementMapFile>,
+    normal_map: Option<NormalMapFile>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AlbedoMapFile {
+    path: PathBuf,
+    min: f64,
+    max: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DisplacementMapFile {
+    path: PathBuf,
+    scale: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct NormalMapFile {
+    path: PathBuf,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StateFile {
+    #[serde(default)]
+    body_position: [f64; 3],
+    #[serde(default = "identity_quaternion")]
+    body_attitude: [f64; 4],
+    camera_position: [f64; 3],
+    camera_attitude: [f64; 4],
+    sun_position: [f64; 3],
+}
+
+fn identity_quaternion() -> [f64; 4] {
+    [1.0, 0.0, 0.0, 0.0]
+}
+
+fn positive(value: f64, field: &str) -> Result<f64> {
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err(Error::invalid(
+            field,
+            format!("must be finite and > 0, got {value}"),
+        ))
+    }
+}
+
+fn vector(v: [f64; 3], field: &str) -> Result<DVec3> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(DVec3::from_array(v))
+    } else {
+        Err(Error::invalid(field, "has a non-finite component"))
+    }
+}
+
+impl Scene {
+    /// Read and check a scene file. Relative paths inside it resolve
+    /// against the file's directory.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::from_toml(&text, path)
+    }
+
+    /// Parse a scene from TOML text; `path` names the source in errors and
+    /// anchors relative paths.
+    pub fn from_toml(text: &str, path: &Path) -> Result<Self> {
+        let file: SceneFile =
+            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        Self::build(file, base).map_err(|e| match e {
+            Error::Invalid { .. } | Error::Other(_) => Error::parse(path, e.to_string()),
+            other => other,
+        })
+    }
+
+    fn build(file: SceneFile, base: &Path) -> Result<Self> {
+        let camera = camera_from(&file.camera, base)?;
+        let sun = match file.sun.spectrum.as_str() {
+            "blackbody" => SolarSpectrum::blackbody(
+                file.sun
+                    .temperature
+                    .ok_or_else(|| Error::invalid("sun.temperature", "required for a blackbody"))?,
+                file.sun.irradiance_1au.unwrap_or(1361.0),
+            )?,
+            table => {
+                SolarSpectrum::from_csv(&resolve(base, Path::new(table)), file.sun.irradiance_1au)
+                    .map_err(|e| Error::invalid("sun.spectrum", e.to_string()))?
+            }
+        };
+        let radius = positive(file.body.radius, "body.radius")?;
+        let reflectance = file.body.reflectance.build()?;
+        let albedo_map = match &file.body.albedo_map {
+            Some(m) => {
+                let lo = m.min;
+                let hi = m.max;
+                if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi >= lo) {
+                    return Err(Error::invalid(
+                        "body.albedo_map",
+                        "need finite 0 <= min <= max",
+                    ));
+                }
+                let mut map = load_map(base, &m.path, "body.albedo_map.path")?;
+                map.stretch(lo, hi);
+                Some(map)
+            }
+            None => None,
+        };
+        let mut relief = Relief::default();
+        if let Some(d) = &file.body.displacement_map {
+            if !d.scale.is_finite() {
+                return Err(Error::invalid("body.displacement_map.scale", "not finite"));
+            }
+            let mut height = load_map(base, &d.path, "body.displacement_map.path")?;
+            height.scale(d.scale);
+            let (d_lat, d_lon) = height.gradients();
+            relief.height = Some((height, d_lat, d_lon));
+        }
+        if let Some(n) = &file.body.normal_map {
+            let p = resolve(base, &n.path);
+            relief.normals = Some(
+                NormalMap::load(&p)
+                    .map_err(|e| Error::invalid("body.normal_map.path", e.to_string()))?,
+            );
+        }
+        let s = &file.state;
+        let state = State {
+            body_position: vector(s.body_position, "state.body_position")?,
+            body_attitude: quaternion(s.body_attitude, "state.body_attitude")?,
+            camera_position: vector(s.camera_position, "state.camera_position")?,
+            camera_attitude: quaternion(s.camera_attitude, "state.camera_attitude")?,
+            sun_position: vector(s.sun_position, "state.sun_position")?,
+        };
+        state.check(radius, "state")?;
+        file.render.check()?;
+        Ok(Scene {
+            camera,
+            sun,
+            body: Body {
+                radius,
+                reflectance,
+                albedo_map,
+                relief,
+            },
+            state,
+            render: file.render,
+        })
+    }
+}
+
+fn resolve(base: &Path, p: &Path) -> PathBuf {
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        base.join(p)
+    }
+}
+
+fn load_map(base: &Path, p: &Path, field: &str) -> Result<EquirectMap> {
+    let path = resolve(base, p);
+    if !path.exists() {
+        return Err(Error::invalid(
+            field,
+            format!("map file {} does not exist", path.display()),
+        ));
+    }
+    EquirectMap::load(&path).map_err(|e| Error::invalid(field, e.to_string()))
+}
+
+fn response(r: &ResponseFile, base: &Path, field: &str) -> Result<Response> {
+    match r {
+        ResponseFile::Constant(v) if v.is_finite() && *v >= 0.0 => Ok(Response::Constant(*v)),
+        ResponseFile::Constant(v) => Err(Error::invalid(field, format!("must be >= 0, got {v}"))),
+        ResponseFile::Table(p) => Table::from_csv(&resolve(base, p))
+            .map(Response::Table)
+            .map_err(|e| Error::invalid(field, e.to_string())),
+    }
+}
+
+/// Build a camera from its `[camera]` table.
+pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
+    let [width, height] = c.resolution;
+    if width == 0 || height == 0 || width > 65_536 || height > 65_536 {
+        return Err(Error::invalid(
+            "camera.resolution",
+            "must be between 1 and 65536 px",
+        ));
+    }
+    let pitch = positive(c.pixel_pitch, "camera.pixel_pitch")?;
+    let focal_length = match (c.focal_length, c.fov_deg) {
+        (Some(f), None) => positive(f, "camera.focal_length")?,
+        (None, Some(fov)) => {
+            if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
+                return Err(Error::invalid("camera.fov_deg", "must be in (0, 180)"));
+            }
+            width as f64 * pitch / 2.0 / (fov.to_radians() / 2.0).tan()
+        }
+        (Some(_), Some(_)) => {
+            return Err(Error::invalid(
+                "camera.focal_length",
+                "give either focal_length or fov_deg, not both",
+            ))
+        }
+        (None, None) => {
+            return Err(Error::invalid(
+                "camera.focal_length",
+                "missing: give focal_length or fov_deg",
+            ))
+        }
+    };
+    let [cx, cy] = c
+        .principal_point
+        .unwrap_or([width as f64 / 2.0, height as f64 / 2.0]);
+    if !(cx.is_finite() && cy.is_finite()) {
+        return Err(Error::invalid("camera.principal_point", "not finite"));
+    }
+    let f_number = positive(c.f_number, "camera.f_number")?;
+    let exposure = positive(c.exposure, "camera.exposure")?;
+    let full_well = positive(c.full_well, "camera.full_well")?;
+    if c.bits == 0 || c.bits > 32 {
+        return Err(Error::invalid("camera.bits", "must be 1..=32"));
+    }
+    if !(c.gain.is_finite() && c.gain >= 0.0) {
+        return Err(Error::invalid("camera.gain", "must be >= 0"));
+    }
+    let band = c.band;
+    if !(band[0].is_finite() && band[1].is_finite() && band[0] > 0.0 && band[1] > band[0]) {
+        return Err(Error::invalid(
+            "camera.band",
+            "need 0 < lower < upper wavelength [m]",
+        ));
+    }
+    if band[1] > 1e-3 {
+        return Err(Error::invalid(
+            "camera.band",
+            "wavelengths are in metres (e.g. 450e-9), not nanometres",
+        ));
+    }
+    let max_dn = 2f64.powi(c.bits as i32) - 1.0;
+    let gain = if c.gain > 0.0 {
+        c.gain
+    } else {
+        max_dn / full_well
+    };
+    Ok(Camera {
+        pinhole: Pinhole {
+            width,
+            height,
+            fx: focal_length / pitch,
+            fy: focal_length / pitch,
+            cx,
+            cy,
+        },
+        pixel_pitch: pitch,
+        focal_length,
+        f_number,
+        exposure,
+        full_well,
+        bits: c.bits,
+        gain,
+        band,
+        quantum_efficiency: response(&c.quantum_efficiency, base, "camera.quantum_efficiency")?,
+        transmission: response(&c.transmission, base, "camera.transmission")?,
+    })
+}

@@ -1,0 +1,170 @@
+//! The subcommands' bodies: argument handling around the library.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use glam::{DQuat, DVec3};
+use serde::Serialize;
+
+use optistim::render::detector::{render_scene, PixelGeometry};
+use optistim::render::{output, Renderer};
+use optistim::scene::Scene;
+
+/// `optistim render`.
+pub fn render(scene_path: &Path, out: &Path, caps_per_pixel: Option<f64>) -> Result<()> {
+    let mut scene = Scene::from_file(scene_path)?;
+    if let Some(d) = caps_per_pixel {
+        scene.render.caps_per_pixel = Some(d);
+        scene.render.check()?;
+    }
+    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let pixels = PixelGeometry::new(&renderer);
+    let images = render_scene(&scene, &mut renderer, &pixels)?;
+    let pin = &scene.camera.pinhole;
+    output::write_render(out, pin.width, pin.height, &images)
+        .with_context(|| format!("writing {}", out.display()))?;
+    let s = &images.summary;
+    tracing::info!(
+        phase_deg = format!("{:.3}", s.phase_angle_deg),
+        irradiance_w_m2 = format!("{:.6e}", s.irradiance_at_pupil_w_m2),
+        samples = s.samples,
+        max_dn = s.max_dn,
+        saturated = s.saturated_pixels,
+        render_ms = format!("{:.2}", s.render_ms),
+        "rendered {} into {}",
+        scene_path.display(),
+        out.display()
+    );
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct BenchRow {
+    phase_deg: f64,
+    caps_per_pixel: f64,
+    caps: u64,
+    median_ms: f64,
+    p90_ms: f64,
+    flux_error: f64,
+    pixel_error_p50: f64,
+    pixel_error_p99: f64,
+    pixel_error_max: f64,
+}
+
+/// Place the camera so that the phase angle at the body is `phase_deg`,
+/// keeping its range and pointing it at the body centre.
+fn at_phase(scene: &mut Scene, phase_deg: f64) {
+    let st = &mut scene.state;
+    let range = (st.camera_position - st.body_position).length();
+    let sun_dir = (st.sun_position - st.body_position).normalize();
+    let pole = sun_dir.any_orthonormal_vector();
+    let view = DQuat::from_axis_angle(pole, phase_deg.to_radians()) * sun_dir;
+    st.camera_position = st.body_position + view * range;
+    let boresight = -view;
+    let up_hint = if boresight.cross(DVec3::Z).length() > 1e-6 {
+        DVec3::Z
+    } else {
+        DVec3::X
+    };
+    let x = boresight.cross(up_hint).normalize();
+    let y = boresight.cross(x);
+    st.camera_attitude = DQuat::from_mat3(&glam::DMat3::from_cols(x, y, boresight)).normalize();
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let k = ((sorted.len() - 1) as f64 * p).round() as usize;
+    sorted[k]
+}
+
+/// `optistim bench`: time against error for several densities, against the
+/// same renderer at 16× the highest linear... reference density.
+pub fn bench(
+    scene_path: &Path,
+    phases: &[f64],
+    densities: &[f64],
+    repeats: usize,
+    json: Option<&Path>,
+) -> Result<()> {
+    let base = Scene::from_file(scene_path)?;
+    let pin = base.camera.pinhole.clone();
+    let mut renderer = Renderer::new(pin.clone());
+    let mut rows = Vec::new();
+    println!(
+        "machine: {} threads; image {}x{}; model {}",
+        rayon::current_num_threads(),
+        pin.width,
+        pin.height,
+        base.body.reflectance.name()
+    );
+    println!("| phase [deg] | caps/px | caps | median [ms] | p90 [ms] | flux error | pixel err p50 | p99 | max |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for &phase in phases {
+        let mut scene = base.clone();
+        at_phase(&mut scene, phase);
+        // Reference: 16× the sample density of the densest setting (4× per axis).
+        let ref_density = 4.0 * densities.iter().cloned().fold(0.0, f64::max);
+        let mut settings = scene.render.clone();
+        settings.caps_per_pixel = Some(ref_density);
+        settings.min_caps = settings.min_caps.max(256);
+        renderer.render_flux(&scene.body, &scene.state, &settings, None);
+        let reference: Vec<f32> = renderer.flux().to_vec();
+        let ref_total: f64 = reference.iter().map(|&v| v as f64).sum();
+        let ref_peak = reference.iter().cloned().fold(0.0f32, f32::max) as f64;
+        for &density in densities {
+            settings.caps_per_pixel = Some(density);
+            settings.min_caps = scene.render.min_caps;
+            let mut times = Vec::with_capacity(repeats);
+            let mut caps = 0;
+            for _ in 0..repeats.max(1) {
+                let t = Instant::now();
+                let stats = renderer.render_flux(&scene.body, &scene.state, &settings, None);
+                times.push(t.elapsed().as_secs_f64() * 1e3);
+                caps = stats.caps;
+            }
+            times.sort_by(f64::total_cmp);
+            let flux = renderer.flux();
+            let total: f64 = flux.iter().map(|&v| v as f64).sum();
+            // Per-pixel relative error over pixels above 1 % of the peak.
+            let mut errors: Vec<f64> = flux
+                .iter()
+                .zip(&reference)
+                .filter(|(_, &r)| r as f64 > 0.01 * ref_peak)
+                .map(|(&v, &r)| ((v - r) as f64 / r as f64).abs())
+                .collect();
+            errors.sort_by(f64::total_cmp);
+            let row = BenchRow {
+                phase_deg: phase,
+                caps_per_pixel: density,
+                caps,
+                median_ms: percentile(&times, 0.5),
+                p90_ms: percentile(&times, 0.9),
+                flux_error: (total - ref_total).abs() / ref_total,
+                pixel_error_p50: percentile(&errors, 0.5),
+                pixel_error_p99: percentile(&errors, 0.99),
+                pixel_error_max: errors.last().copied().unwrap_or(f64::NAN),
+            };
+            println!(
+                "| {:.0} | {} | {} | {:.2} | {:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
+                row.phase_deg,
+                row.caps_per_pixel,
+                row.caps,
+                row.median_ms,
+                row.p90_ms,
+                row.flux_error,
+                row.pixel_error_p50,
+                row.pixel_error_p99,
+                row.pixel_error_max
+            );
+            rows.push(row);
+        }
+    }
+    if let Some(path) = json {
+        std::fs::write(path, serde_json::to_string_pretty(&rows)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}

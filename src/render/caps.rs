@@ -1,0 +1,657 @@
+//! Surface caps: their layout over the lit, visible lune, their power
+//! coefficients PF_i, and the area-weighted gridding of each PF_i onto the
+//! pixels its projected footprint covers.
+//!
+//! Layout. The unit square (t, s) of [`Lune`] is split recursively until a
+//! cell's projection spans at most [`LEAF_CELL_PX`] pixels; cells outside
+//! the field of view or behind the camera are dropped on the way. A leaf
+//! cell is then cut into n_t × n_s caps, with n chosen from its projected
+//! size so every cap projects to about 1/density pixels: the (θ, φ) samples
+//! are non-uniform on the sphere and uniform on the image.
+//!
+//! Integration. Each cap's PF_i is a product rule: the exact closed-form
+//! integral of a geometric weight ω over the cap (paper's frame, see
+//! [`super::closed_form`]) times the ratio integrand/ω at the cap centre.
+//! ω is μ0μ (Lambert), μ (Area) or μ0μ/(μ0+μ) (Lommel–Seeliger), so those
+//! models are exact per cap in the distant limit; for the other models and at
+//! finite distance the ratio is smooth and the rule is second order in the
+//! cap size.
+
+use glam::DVec3;
+
+use super::closed_form;
+use super::lune::Lune;
+use crate::radiometry::reflectance::Reflectance;
+use crate::radiometry::spectrum::AU;
+use crate::radiometry::ScatteringGeometry;
+use crate::scene::maps::lat_lon;
+use crate::scene::{Body, Pinhole};
+
+/// Largest projected size [px] of a leaf cell before it is cut into caps.
+pub const LEAF_CELL_PX: f64 = 12.0;
+const MAX_DEPTH: u32 = 48;
+
+/// Which closed-form weight a model is integrated against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Weight {
+    /// μ0 μ (exact for Lambert).
+    Mu0Mu,
+    /// μ (exact for Area).
+    Mu,
+    /// μ0 μ / (μ0 + μ) (exact for Lommel–Seeliger).
+    LommelSeeliger,
+}
+
+impl Weight {
+    /// The weight that makes a model's distant-limit caps exact.
+    pub fn for_model(model: &Reflectance) -> Self {
+        match model.name() {
+            "area" => Weight::Mu,
+            "lommel_seeliger" => Weight::LommelSeeliger,
+            _ => Weight::Mu0Mu,
+        }
+    }
+
+    #[inline]
+    fn at(self, mu0: f64, mu: f64) -> f64 {
+        match self {
+            Weight::Mu0Mu => mu0 * mu,
+            Weight::Mu => mu,
+            Weight::LommelSeeliger => mu0 * mu / (mu0 + mu),
+        }
+    }
+}
+
+/// A rectangle of the (t, s) square still to be visited or to be cut.
+#[derive(Clone, Copy, Debug)]
+pub struct Cell {
+    pub t0: f64,
+    pub t1: f64,
+    pub s0: f64,
+    pub s1: f64,
+    pub depth: u32,
+}
+
+/// A leaf cell and the number of caps it is cut into.
+#[derive(Clone, Copy, Debug)]
+pub struct Leaf {
+    pub cell: Cell,
+    pub n_t: u32,
+    pub n_s: u32,
+}
+
+/// Axis-aligned pixel rectangle [x0, x1) × [y0, y1).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Rect {
+    pub x0: usize,
+    pub y0: usize,
+    pub x1: usize,
+    pub y1: usize,
+}
+
+impl Rect {
+    /// Width [px].
+    pub fn width(&self) -> usize {
+        self.x1.saturating_sub(self.x0)
+    }
+    /// Height [px].
+    pub fn height(&self) -> usize {
+        self.y1.saturating_sub(self.y0)
+    }
+    /// Whether the rectangle has no pixels.
+    pub fn is_empty(&self) -> bool {
+        self.width() == 0 || self.height() == 0
+    }
+    /// Smallest rectangle holding both.
+    pub fn union(&self, other: &Rect) -> Rect {
+        if self.is_empty() {
+            return *other;
+        }
+        if other.is_empty() {
+            return *self;
+        }
+        Rect {
+            x0: self.x0.min(other.x0),
+            y0: self.y0.min(other.y0),
+            x1: self.x1.max(other.x1),
+            y1: self.y1.max(other.y1),
+        }
+    }
+}
+
+/// Everything the per-cap loop needs, precomputed once per frame.
+pub struct Frame<'a> {
+    pub lune: Lune,
+    pub camera: &'a Pinhole,
+    /// Lester axes in camera coordinates.
+    pub axes_cam: [DVec3; 3],
+    /// Camera-frame position of the camera relative to the body centre... as
+    /// seen from the camera: P_cam = r n_cam − camera_cam.
+    pub camera_cam: DVec3,
+    /// Lester axes in body-fixed coordinates (for maps).
+    pub axes_body: [DVec3; 3],
+    pub body: &'a Body,
+    /// Albedo parameter used where there is no map.
+    pub albedo: f64,
+    pub weight: Weight,
+    pub radius: f64,
+    /// Caps per pixel along each image axis.
+    pub density: f64,
+    /// Minimum caps along each axis of the whole lune.
+    pub min_caps: f64,
+    pub distant: bool,
+}
+
+/// Projection of a lune point, or None behind the camera.
+#[inline]
+fn project(frame: &Frame, theta: f64, phi: f64) -> Option<(f64, f64)> {
+    let (st, ct) = theta.sin_cos();
+    let (sp, cp) = phi.sin_cos();
+    let [x, y, z] = frame.axes_cam;
+    let p = (x * (st * cp) + y * (st * sp) + z * ct) * frame.radius - frame.camera_cam;
+    if p.z <= 1e-9 * frame.lune.camera_range {
+        None
+    } else {
+        Some(frame.camera.project(p))
+    }
+}
+
+impl Frame<'_> {
+    #[inline]
+    fn theta(&self, t: f64) -> f64 {
+        let lo = self.lune.theta_min;
+        lo + t * (self.lune.theta_max() - lo)
+    }
+
+    #[inline]
+    fn phi(&self, theta: f64, s: f64) -> f64 {
+        let (lo, hi) = self.lune.phi_range(theta.sin());
+        lo + s * (hi - lo).max(0.0)
+    }
+
+    /// Visit a cell: drop it, cut it, or store it as a leaf. Returns the
+    /// pixel bounds the leaf may touch.
+    pub fn visit(&self, cell: Cell, stack: &mut Vec<Cell>, leaves: &mut Vec<Leaf>) -> Option<Rect> {
+        let tm = 0.5 * (cell.t0 + cell.t1);
+        let sm = 0.5 * (cell.s0 + cell.s1);
+        let ts = [cell.t0, tm, cell.t1];
+        let ss = [cell.s0, sm, cell.s1];
+        let mut pts = [[(0.0, 0.0); 3]; 3];
+        let mut behind = 0;
+        for (a, &t) in ts.iter().enumerate() {
+            let theta = self.theta(t);
+            for (b, &s) in ss.iter().enumerate() {
+                match project(self, theta, self.phi(theta, s)) {
+                    Some(p) => pts[a][b] = p,
+                    None => behind += 1,
+                }
+            }
+        }
+        let split = |stack: &mut Vec<Cell>| {
+            for (t0, t1) in [(cell.t0, tm), (tm, cell.t1)] {
+                for (s0, s1) in [(cell.s0, sm), (sm, cell.s1)] {
+                    stack.push(Cell {
+                        t0,
+                        t1,
+                        s0,
+                        s1,
+                        depth: cell.depth + 1,
+                    });
+                }
+            }
+        };
+        if behind == 9 && cell.depth > 2 {
+            return None;
+        }
+        if behind > 0 {
+            if cell.depth < MAX_DEPTH {
+                split(stack);
+            }
+            return None;
+        }
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        for p in pts.iter().flatten() {
+            x0 = x0.min(p.0);
+            y0 = y0.min(p.1);
+            x1 = x1.max(p.0);
+            y1 = y1.max(p.1);
+        }
+        let margin = 0.3 * (x1 - x0).max(y1 - y0) + 2.0;
+        let (w, h) = (self.camera.width as f64, self.camera.height as f64);
+        if x1 + margin < 0.0 || y1 + margin < 0.0 || x0 - margin > w || y0 - margin > h {
+            return None;
+        }
+        let dist =
+            |a: (f64, f64), b: (f64, f64)| ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt();
+        let mut along_t: f64 = 0.0;
+        let mut along_s: f64 = 0.0;
+        for k in 0..3 {
+            along_t = along_t.max(dist(pts[0][k], pts[1][k]) + dist(pts[1][k], pts[2][k]));
+            along_s = along_s.max(dist(pts[k][0], pts[k][1]) + dist(pts[k][1], pts[k][2]));
+        }
+        let big = along_t.max(along_s) > LEAF_CELL_PX;
+        // Near the top levels the 3×3 samples may miss curvature: always
+        // refine the first levels.
+        if (big || cell.depth < 3) && cell.depth < MAX_DEPTH {
+            split(stack);
+            return None;
+        }
+        let min_t = (self.min_caps * (cell.t1 - cell.t0)).ceil();
+        let min_s = (self.min_caps * (cell.s1 - cell.s0)).ceil();
+        let n_t = (along_t * self.density)
+            .ceil()
+            .max(min_t)
+            .clamp(1.0, 4096.0) as u32;
+        let n_s = (along_s * self.density)
+            .ceil()
+            .max(min_s)
+            .clamp(1.0, 4096.0) as u32;
+        leaves.push(Leaf { cell, n_t, n_s });
+        let clamp = |v: f64, hi: f64| v.clamp(0.0, hi) as usize;
+        Some(Rect {
+            x0: clamp((x0 - margin).floor(), w),
+            y0: clamp((y0 - margin).floor(), h),
+            x1: clamp((x1 + margin).ceil() + 1.0, w),
+            y1: clamp((y1 + margin).ceil() + 1.0, h),
+        })
+    }
+
+    /// Project one row of cap corners (θ fixed, s from s0 in n steps of
+    /// ds) into `out`; a corner behind the camera is NaN.
+    fn corner_row(&self, theta: f64, s0: f64, ds: f64, n: u32, out: &mut Vec<(f64, f64)>) {
+        out.clear();
+        let (st, ct) = theta.sin_cos();
+        let (lo, hi) = self.lune.phi_range(st);
+        let width = (hi - lo).max(0.0);
+        let (mut sp, mut cp) = (lo + s0 * width).sin_cos();
+        let (sd, cd) = (ds * width).sin_cos();
+        let [xc, yc, zc] = self.axes_cam;
+        let base = zc * (ct * self.radius) - self.camera_cam;
+        let (xs, ys) = (xc * (st * self.radius), yc * (st * self.radius));
+        for _ in 0..=n {
+            let p = base + xs * cp + ys * sp;
+            out.push(if p.z > 0.0 {
+                self.camera.project(p)
+            } else {
+                (f64::NAN, f64::NAN)
+            });
+            (sp, cp) = (sp * cd + cp * sd, cp * cd - sp * sd);
+        }
+    }
+
+    /// Integrate and grid every cap of a leaf into `buf` (covering `roi`).
+    /// `rows` is scratch space. Returns the sum of the caps' PF (per unit
+    /// solar irradiance at 1 au).
+    pub fn grid_leaf(
+        &self,
+        leaf: &Leaf,
+        buf: &mut [f32],
+        roi: &Rect,
+        rows: &mut [Vec<(f64, f64)>; 2],
+    ) -> f64 {
+        let cell = leaf.cell;
+        let dt = (cell.t1 - cell.t0) / leaf.n_t as f64;
+        let ds = (cell.s1 - cell.s0) / leaf.n_s as f64;
+        let span_theta = self.lune.theta_max() - self.lune.theta_min;
+        let d_theta = dt * span_theta;
+        let alpha = self.lune.alpha;
+        let (sin_a, cos_a) = alpha.sin_cos();
+        let [xb, yb, zb] = self.axes_body;
+        let cam_local = self.lune.camera_local();
+        let d_cam = self.lune.camera_range;
+        let d_sun = self.lune.sun_range;
+        let r = self.radius;
+        let model = &self.body.reflectance;
+        let needs_body_dir = self.body.albedo_map.is_some()
+            || self.body.relief.height.is_some()
+            || self.body.relief.normals.is_some();
+        let mut total = 0.0;
+        let [upper, lower] = rows;
+        self.corner_row(self.theta(cell.t0), cell.s0, ds, leaf.n_s, lower);
+        for a in 0..leaf.n_t {
+            std::mem::swap(upper, lower);
+            let t_next = cell.t0 + (a + 1) as f64 * dt;
+            self.corner_row(self.theta(t_next), cell.s0, ds, leaf.n_s, lower);
+            let tc = cell.t0 + (a as f64 + 0.5) * dt;
+            let theta = self.theta(tc);
+            let (st, ct) = theta.sin_cos();
+            let (lo, hi) = self.lune.phi_range(st);
+            if hi <= lo {
+                continue;
+            }
+            let d_phi = ds * (hi - lo);
+            let w_theta = closed_form::theta_weight(self.weight, theta, d_theta);
+            let phi_start = lo + (cell.s0 + 0.5 * ds) * (hi - lo);
+            let (mut sp, mut cp) = phi_start.sin_cos();
+            let (sd, cd) = d_phi.sin_cos();
+            let half_sin = (0.5 * d_phi).sin();
+            for b in 0..leaf.n_s as usize {
+                let (sp_c, cp_c) = (sp, cp);
+                // Advance φ by one cap (angle-addition recurrence).
+                (sp, cp) = (sp * cd + cp * sd, cp * cd - sp * sd);
+                let (sp, cp) = (sp_c, cp_c);
+                // Far-field cosines and the closed-form weight of the cap.
+                let cos_pa = cp * cos_a + sp * sin_a;
+                let mu0_far = st * cp;
+                let mu_far = st * cos_pa;
+                let w_phi = match self.weight {
+                    Weight::Mu0Mu => {
+                        let cos_2pa = (cp * cp - sp * sp) * cos_a + 2.0 * sp * cp * sin_a;
+                        0.5 * (d_phi * cos_a + cos_2pa * sd)
+                    }
+                    Weight::Mu => 2.0 * cos_pa * half_sin,
+                    Weight::LommelSeeliger => {
+                        let phi = sp.atan2(cp);
+                        closed_form::ls_phi_weight(phi - 0.5 * d_phi, phi + 0.5 * d_phi, alpha)
+                    }
+                };
+                let omega = self.weight.at(mu0_far, mu_far);
+                if !(omega > 0.0) {
+                    continue;
+                }
+                let n_local = DVec3::new(st * cp, st * sp, ct);
+                let n_body = if needs_body_dir {
+                    xb * n_local.x + yb * n_local.y + zb * n_local.z
+                } else {
+                    DVec3::Z
+                };
+                let integrand = self.integrand(
+                    n_local, n_body, mu0_far, mu_far, cos_a, cam_local, d_cam, d_sun, r, model,
+                );
+                let pf = r * r * w_theta * w_phi * integrand / omega;
+                if !(pf > 0.0) {
+                    continue;
+                }
+                total += pf;
+                let quad = [upper[b], upper[b + 1], lower[b + 1], lower[b]];
+                if quad.iter().all(|p| p.0.is_finite()) {
+                    grid_quad(buf, roi, &quad, pf);
+                }
+            }
+        }
+        total
+    }
+
+    /// Integrand (per unit solar irradiance at 1 au, without dS) at a cap
+    /// centre: f_r μ0 (AU/d_sun)² μ / d_cam² with exact geometry.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn integrand(
+        &self,
+        n_local: DVec3,
+        n_body: DVec3,
+        mu0_far: f64,
+        mu_far: f64,
+        cos_a: f64,
+        cam_local: DVec3,
+        d_cam: f64,
+        d_sun: f64,
+        r: f64,
+        model: &Reflectance,
+    ) -> f64 {
+        let albedo = match &self.body.albedo_map {
+            Some(map) => map.sample_dir(n_body),
+            None => self.albedo,
+        };
+        let relief = &self.body.relief;
+        if relief.height.is_none() && relief.normals.is_none() {
+            let (mu0, mu, cos_g, sun_sq, cam_sq) = if self.distant {
+                (mu0_far, mu_far, cos_a, d_sun * d_sun, d_cam * d_cam)
+            } else {
+                let ns = d_sun * mu0_far;
+                let nc = d_cam * mu_far;
+                let sun_sq = (d_sun * d_sun - 2.0 * r * ns + r * r).max(0.0);
+                let cam_sq = (d_cam * d_cam - 2.0 * r * nc + r * r).max(0.0);
+                let ds = sun_sq.sqrt();
+                let dc = cam_sq.sqrt();
+                let sc = d_sun * cam_local.x; // S·C with S = (d_sun, 0, 0)
+                let cos_g = (sc - r * (ns + nc) + r * r) / (ds * dc);
+                (
+                    (ns - r) / ds,
+                    (nc - r) / dc,
+                    cos_g.clamp(-1.0, 1.0),
+                    sun_sq,
+                    cam_sq,
+                )
+            };
+            if mu0 <= 0.0 || mu <= 0.0 {
+                return 0.0;
+            }
+            let g = ScatteringGeometry { mu0, mu, cos_g };
+            return model.radiance_factor(&g, albedo) * (AU * AU / sun_sq) * mu / cam_sq;
+        }
+        self.relief_integrand(n_local, n_body, cam_local, d_sun, r, model, albedo)
+    }
+
+    /// Integrand with displacement and/or normal maps: local radius from the
+    /// height, geometric normal from its slopes, shading normal from the
+    /// normal map. Shadows cast by relief are not modelled.
+    #[allow(clippy::too_many_arguments)]
+    fn relief_integrand(
+        &self,
+        n_local: DVec3,
+        n_body: DVec3,
+        cam_local: DVec3,
+        d_sun: f64,
+        radius: f64,
+        model: &Reflectance,
+        albedo: f64,
+    ) -> f64 {
+        let relief = &self.body.relief;
+        let (lat, lon) = lat_lon(n_body);
+        let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);
+        let north = n_body.cross(east);
+        let mut r = radius;
+        let mut geometric = n_body;
+        if let Some((height, d_lat, d_lon)) = &relief.height {
+            r = radius + height.sample(lat, lon);
+            let cos_lat = lat.cos().max(1e-6);
+            let g_north = d_lat.sample(lat, lon) / r;
+            let g_east = d_lon.sample(lat, lon) / (r * cos_lat);
+            geometric = (n_body - north * g_north - east * g_east).normalize();
+        }
+        let shading = match &relief.normals {
+            Some(map) => {
+                let t = map.sample(lat, lon);
+                (east * t.x + north * t.y + geometric * t.z).normalize()
+            }
+            None => geometric,
+        };
+        let [xb, yb, zb] = self.axes_body;
+        let to_local = |v: DVec3| DVec3::new(v.dot(xb), v.dot(yb), v.dot(zb));
+        let geometric = to_local(geometric);
+        let shading = to_local(shading);
+        let p = n_local * r;
+        let sun = DVec3::new(d_sun, 0.0, 0.0) - p;
+        let cam = cam_local - p;
+        let (sun_sq, cam_sq) = (sun.length_squared(), cam.length_squared());
+        let l = sun / sun_sq.sqrt();
+        let v = cam / cam_sq.sqrt();
+        let g = ScatteringGeometry::from_vectors(shading, l, v);
+        if g.mu0 <= 0.0 || g.mu <= 0.0 {
+            return 0.0;
+        }
+        let projected = geometric.dot(v) / geometric.dot(n_local).max(1e-6);
+        if projected <= 0.0 {
+            return 0.0;
+        }
+        let area_scale = (r / radius) * (r / radius);
+        model.radiance_factor(&g, albedo) * (AU * AU / sun_sq) * projected * area_scale / cam_sq
+    }
+}
+
+/// A convex polygon of at most 8 vertices.
+#[derive(Clone, Copy)]
+struct Polygon {
+    v: [(f64, f64); 8],
+    n: usize,
+}
+
+impl Polygon {
+    fn area(&self) -> f64 {
+        let mut a = 0.0;
+        for k in 0..self.n {
+            let (p, q) = (self.v[k], self.v[(k + 1) % self.n]);
+            a += p.0 * q.1 - q.0 * p.1;
+        }
+        0.5 * a.abs()
+    }
+
+    /// The part with coordinate `axis` (0: x, 1: y) on the `keep_low` side
+    /// of `at` (Sutherland–Hodgman against one line).
+    fn clip(&self, axis: usize, at: f64, keep_low: bool) -> Polygon {
+        let coord = |p: (f64, f64)| if axis == 0 { p.0 } else { p.1 };
+        let inside = |p: (f64, f64)| (coord(p) <= at) == keep_low;
+        let mut out = Polygon {
+            v: [(0.0, 0.0); 8],
+            n: 0,
+        };
+        for k in 0..self.n {
+            let (p, q) = (self.v[k], self.v[(k + 1) % self.n]);
+            let (ip, iq) = (inside(p), inside(q));
+            if ip && out.n < 8 {
+                out.v[out.n] = p;
+                out.n += 1;
+            }
+            if ip != iq && out.n < 8 {
+                let t = (at - coord(p)) / (coord(q) - coord(p));
+                out.v[out.n] = (p.0 + t * (q.0 - p.0), p.1 + t * (q.1 - p.1));
+                out.n += 1;
+            }
+        }
+        out
+    }
+}
+
+#[inline]
+fn add(buf: &mut [f32], roi: &Rect, i: i64, j: i64, value: f64) {
+    if i >= roi.x0 as i64 && i < roi.x1 as i64 && j >= roi.y0 as i64 && j < roi.y1 as i64 {
+        let k = (j as usize - roi.y0) * roi.width() + (i as usize - roi.x0);
+        buf[k] += value as f32;
+    }
+}
+
+/// Area-weighted gridding of one cap (the paper's countermeasure against
+/// aliasing): `value` is split over the pixels in proportion to the area of
+/// the cap's projected footprint, the quadrilateral of its projected
+/// corners, that falls in each. Neighbouring caps share corners, so the
+/// footprints tile the image without gaps or overlaps.
+#[inline]
+fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
+    let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
+    for p in &quad[1..] {
+        x0 = x0.min(p.0);
+        x1 = x1.max(p.0);
+        y0 = y0.min(p.1);
+        y1 = y1.max(p.1);
+    }
+    let (i0, i1) = (x0.floor() as i64, x1.floor() as i64);
+    let (j0, j1) = (y0.floor() as i64, y1.floor() as i64);
+    if i0 == i1 && j0 == j1 {
+        add(buf, roi, i0, j0, value);
+        return;
+    }
+    let mut poly = Polygon {
+        v: [(0.0, 0.0); 8],
+        n: 4,
+    };
+    poly.v[..4].copy_from_slice(quad);
+    let area = poly.area();
+    if !(area > 1e-12 * (x1 - x0 + y1 - y0).powi(2)) {
+        let cx = 0.25 * (quad[0].0 + quad[1].0 + quad[2].0 + quad[3].0);
+        let cy = 0.25 * (quad[0].1 + quad[1].1 + quad[2].1 + quad[3].1);
+        add(buf, roi, cx.floor() as i64, cy.floor() as i64, value);
+        return;
+    }
+    let per_area = value / area;
+    if i1 - i0 <= 1 && j1 - j0 <= 1 {
+        // At most 2×2 pixels: inclusion–exclusion on one vertical and one
+        // horizontal grid line.
+        let (xs, ys) = ((i0 + 1) as f64, (j0 + 1) as f64);
+        let left = if i1 > i0 {
+            poly.clip(0, xs, true)
+        } else {
+            poly
+        };
+        let a_left = left.area();
+        let (a_top, a_left_top) = if j1 > j0 {
+            (poly.clip(1, ys, true).area(), left.clip(1, ys, true).area())
+        } else {
+            (area, a_left)
+        };
+        add(buf, roi, i0, j0, a_left_top * per_area);
+        if i1 > i0 {
+            add(buf, roi, i1, j0, (a_top - a_left_top).max(0.0) * per_area);
+        }
+        if j1 > j0 {
+            add(buf, roi, i0, j1, (a_left - a_left_top).max(0.0) * per_area);
+            if i1 > i0 {
+                let rest = area - a_left - a_top + a_left_top;
+                add(buf, roi, i1, j1, rest.max(0.0) * per_area);
+            }
+        }
+        return;
+    }
+    // Larger footprints: clip column by column, then row by row.
+    let mut rest = poly;
+    for i in i0..=i1 {
+        let column = if i < i1 {
+            let c = rest.clip(0, (i + 1) as f64, true);
+            rest = rest.clip(0, (i + 1) as f64, false);
+            c
+        } else {
+            rest
+        };
+        let mut col_rest = column;
+        for j in j0..=j1 {
+            let cell = if j < j1 {
+                let c = col_rest.clip(1, (j + 1) as f64, true);
+                col_rest = col_rest.clip(1, (j + 1) as f64, false);
+                c
+            } else {
+                col_rest
+            };
+            if cell.n >= 3 {
+                add(buf, roi, i, j, cell.area() * per_area);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gridding_splits_by_exact_area() {
+        let roi = Rect {
+            x0: 0,
+            y0: 0,
+            x1: 8,
+            y1: 8,
+        };
+        // A unit square centred on a pixel corner lands a quarter in each.
+        let mut buf = vec![0.0f32; 64];
+        let q = [(2.5, 2.5), (3.5, 2.5), (3.5, 3.5), (2.5, 3.5)];
+        grid_quad(&mut buf, &roi, &q, 1.0);
+        for k in [2 * 8 + 2, 2 * 8 + 3, 3 * 8 + 2, 3 * 8 + 3] {
+            assert!((buf[k] - 0.25).abs() < 1e-6);
+        }
+        // A triangle-like sliver and a big rotated square conserve value.
+        for quad in [
+            [(1.2, 1.1), (4.7, 2.3), (3.9, 5.6), (0.4, 3.3)],
+            [(3.2, 3.9), (4.1, 3.05), (4.3, 3.9), (3.4, 4.4)],
+        ] {
+            let mut buf = vec![0.0f32; 64];
+            grid_quad(&mut buf, &roi, &quad, 1.0);
+            let sum: f32 = buf.iter().sum();
+            assert!((sum - 1.0).abs() < 1e-6, "{sum}");
+        }
+        // Straddling the image edge keeps only the inside share.
+        let mut buf = vec![0.0f32; 64];
+        let q = [(-0.5, 4.0), (0.5, 4.0), (0.5, 5.0), (-0.5, 5.0)];
+        grid_quad(&mut buf, &roi, &q, 1.0);
+        let sum: f32 = buf.iter().sum();
+        assert!((sum - 0.5).abs() < 1e-6);
+    }
+}

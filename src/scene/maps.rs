@@ -1,0 +1,294 @@
+//! Equirectangular body maps: albedo, displacement and normal maps, and their
+//! bilinear sampling by body-fixed direction.
+//!
+//! Maps are equirectangular, longitude 0 at the image centre (−180° at the
+//! left edge), north up. Body-fixed frame: +z north pole, +x through
+//! (lat 0, lon 0), +y through (lat 0, lon +90° east).
+
+use std::f64::consts::{FRAC_PI_2, PI, TAU};
+use std::path::Path;
+
+use glam::DVec3;
+
+use crate::error::{Error, Result};
+
+/// A scalar map sampled bilinearly.
+#[derive(Clone, Debug)]
+pub struct EquirectMap {
+    /// Width [px] (longitude).
+    pub width: usize,
+    /// Height [px] (latitude).
+    pub height: usize,
+    /// Row-major values, row 0 at the north edge.
+    pub data: Vec<f32>,
+}
+
+/// Latitude and longitude [rad] of a body-fixed direction (need not be unit).
+#[inline]
+pub fn lat_lon(n: DVec3) -> (f64, f64) {
+    let lat = (n.z / n.length()).clamp(-1.0, 1.0).asin();
+    let lon = n.y.atan2(n.x);
+    (lat, lon)
+}
+
+impl EquirectMap {
+    /// Read an image file as a single channel: 8/16-bit grey or colour
+    /// (colour channels are averaged) normalised to [0, 1], or 32-bit float
+    /// TIFF kept as is.
+    pub fn load(path: &Path) -> Result<Self> {
+        if let Some(map) = Self::load_float_tiff(path)? {
+            return Ok(map);
+        }
+        let img = image::open(path).map_err(|e| Error::parse(path, e.to_string()))?;
+        let (width, height) = (img.width() as usize, img.height() as usize);
+        let rgb = img.to_rgb32f();
+        let data = rgb
+            .pixels()
+            .map(|p| (p.0[0] + p.0[1] + p.0[2]) / 3.0)
+            .collect();
+        Self::checked(path, width, height, data)
+    }
+
+    fn load_float_tiff(path: &Path) -> Result<Option<Self>> {
+        let is_tiff = matches!(
+            path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase),
+            Some(ref e) if e == "tif" || e == "tiff"
+        );
+        if !is_tiff {
+            return Ok(None);
+        }
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let mut decoder = tiff::decoder::Decoder::new(std::io::BufReader::new(file))
+            .map_err(|e| Error::parse(path, e.to_string()))?
+            .with_limits(tiff::decoder::Limits::unlimited());
+        if decoder.colortype().ok() != Some(tiff::ColorType::Gray(32)) {
+            return Ok(None);
+        }
+        let (w, h) = decoder
+            .dimensions()
+            .map_err(|e| Error::parse(path, e.to_string()))?;
+        match decoder
+            .read_image()
+            .map_err(|e| Error::parse(path, e.to_string()))?
+        {
+            tiff::decoder::DecodingResult::F32(data) => {
+                Self::checked(path, w as usize, h as usize, data).map(Some)
+            }
+            _ => Ok(None),
+        }
+    }
+
+    fn checked(path: &Path, width: usize, height: usize, data: Vec<f32>) -> Result<Self> {
+        if width < 2 || height < 2 || data.len() != width * height {
+            return Err(Error::parse(path, "map must be at least 2x2 pixels"));
+        }
+        if let Some(k) = data.iter().position(|v| !v.is_finite()) {
+            return Err(Error::parse(
+                path,
+                format!("non-finite value at pixel ({}, {})", k % width, k / width),
+            ));
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// Smallest and largest value.
+    pub fn range(&self) -> (f32, f32) {
+        self.data
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            })
+    }
+
+    /// Map every value linearly so that the map's own range becomes
+    /// [lo, hi].
+    pub fn stretch(&mut self, lo: f64, hi: f64) {
+        let (a, b) = self.range();
+        let span = (b - a) as f64;
+        for v in &mut self.data {
+            let t = if span > 0.0 {
+                (*v - a) as f64 / span
+            } else {
+                0.5
+            };
+            *v = (lo + t * (hi - lo)) as f32;
+        }
+    }
+
+    /// Multiply every value.
+    pub fn scale(&mut self, factor: f64) {
+        for v in &mut self.data {
+            *v = (*v as f64 * factor) as f32;
+        }
+    }
+
+    /// Continuous texel coordinates (integer = texel centre) of lat/lon.
+    #[inline]
+    fn texel(&self, lat: f64, lon: f64) -> (f64, f64) {
+        let x = (lon + PI) / TAU * self.width as f64 - 0.5;
+        let y = (FRAC_PI_2 - lat) / PI * self.height as f64 - 0.5;
+        (x, y)
+    }
+
+    /// Bilinear sample at latitude/longitude [rad]; wraps in longitude,
+    /// clamps in latitude.
+    #[inline]
+    pub fn sample(&self, lat: f64, lon: f64) -> f64 {
+        let (x, y) = self.texel(lat, lon);
+        let y = y.clamp(0.0, (self.height - 1) as f64);
+        let x0 = x.floor();
+        let y0 = y.floor().min((self.height - 2) as f64);
+        let (tx, ty) = (x - x0, y - y0);
+        let w = self.width as i64;
+        let i0 = (x0 as i64).rem_euclid(w) as usize;
+        let i1 = (i0 + 1) % self.width;
+        let r0 = y0 as usize * self.width;
+        let r1 = r0 + self.width;
+        let d = &self.data;
+        let top = d[r0 + i0] as f64 * (1.0 - tx) + d[r0 + i1] as f64 * tx;
+        let bottom = d[r1 + i0] as f64 * (1.0 - tx) + d[r1 + i1] as f64 * tx;
+        top * (1.0 - ty) + bottom * ty
+    }
+
+    /// Bilinear sample along a body-fixed direction.
+    #[inline]
+    pub fn sample_dir(&self, n: DVec3) -> f64 {
+        let (lat, lon) = lat_lon(n);
+        self.sample(lat, lon)
+    }
+
+    /// Derivatives of the map [value per radian] with respect to latitude
+    /// and longitude, by central differences, as two maps.
+    pub fn gradients(&self) -> (EquirectMap, EquirectMap) {
+        let (w, h) = (self.width, self.height);
+        let mut d_lat = vec![0.0f32; w * h];
+        let mut d_lon = vec![0.0f32; w * h];
+        let per_px_lon = w as f64 / TAU;
+        let per_px_lat = h as f64 / PI;
+        for j in 0..h {
+            let up = j.saturating_sub(1);
+            let down = (j + 1).min(h - 1);
+            let rows = (down - up) as f64;
+            for i in 0..w {
+                let left = (i + w - 1) % w;
+                let right = (i + 1) % w;
+                let dx = (self.data[j * w + right] - self.data[j * w + left]) as f64 / 2.0;
+                // Row index grows southward: d/dlat = -d/dy.
+                let dy = (self.data[down * w + i] - self.data[up * w + i]) as f64 / rows;
+                d_lon[j * w + i] = (dx * per_px_lon) as f32;
+                d_lat[j * w + i] = (-dy * per_px_lat) as f32;
+            }
+        }
+        (
+            EquirectMap {
+                width: w,
+                height: h,
+                data: d_lat,
+            },
+            EquirectMap {
+                width: w,
+                height: h,
+                data: d_lon,
+            },
+        )
+    }
+}
+
+/// Tangent-space normal map (east, north, up), RGB-encoded as (n + 1) / 2.
+#[derive(Clone, Debug)]
+pub struct NormalMap {
+    east: EquirectMap,
+    north: EquirectMap,
+    up: EquirectMap,
+}
+
+impl NormalMap {
+    /// Read an RGB normal map.
+    pub fn load(path: &Path) -> Result<Self> {
+        let img = image::open(path).map_err(|e| Error::parse(path, e.to_string()))?;
+        let (width, height) = (img.width() as usize, img.height() as usize);
+        if width < 2 || height < 2 {
+            return Err(Error::parse(path, "map must be at least 2x2 pixels"));
+        }
+        let rgb = img.to_rgb32f();
+        let channel = |c: usize| EquirectMap {
+            width,
+            height,
+            data: rgb.pixels().map(|p| 2.0 * p.0[c] - 1.0).collect(),
+        };
+        Ok(Self {
+            east: channel(0),
+            north: channel(1),
+            up: channel(2),
+        })
+    }
+
+    /// Unit tangent-space normal (east, north, up) at lat/lon.
+    pub fn sample(&self, lat: f64, lon: f64) -> DVec3 {
+        let v = DVec3::new(
+            self.east.sample(lat, lon),
+            self.north.sample(lat, lon),
+            self.up.sample(lat, lon),
+        );
+        let len = v.length();
+        if len > 1e-9 && v.z > 0.0 {
+            v / len
+        } else {
+            DVec3::Z
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn map(width: usize, height: usize, f: impl Fn(f64, f64) -> f64) -> EquirectMap {
+        let mut data = Vec::new();
+        for j in 0..height {
+            for i in 0..width {
+                let lat = FRAC_PI_2 - (j as f64 + 0.5) / height as f64 * PI;
+                let lon = -PI + (i as f64 + 0.5) / width as f64 * TAU;
+                data.push(f(lat, lon) as f32);
+            }
+        }
+        EquirectMap {
+            width,
+            height,
+            data,
+        }
+    }
+
+    #[test]
+    fn longitude_zero_is_the_centre_and_north_is_up() {
+        let m = map(360, 180, |lat, lon| {
+            lat.to_degrees() * 1000.0 + lon.to_degrees()
+        });
+        // Texel centres reproduce their own coordinates.
+        let v = m.sample(10.5f64.to_radians(), 0.5f64.to_radians());
+        assert!((v - 10_500.5).abs() < 1e-3, "{v}");
+        let v = m.sample_dir(DVec3::new(0.0, 0.0, 1.0));
+        assert!(v > 89_000.0, "north pole reads the top row: {v}");
+    }
+
+    #[test]
+    fn sampling_wraps_across_the_date_line() {
+        let m = map(8, 4, |_, lon| lon.cos());
+        let a = m.sample(0.0, PI - 1e-9);
+        let b = m.sample(0.0, -PI + 1e-9);
+        assert!((a - b).abs() < 1e-6);
+    }
+
+    #[test]
+    fn gradients_of_a_smooth_field() {
+        let m = map(720, 360, |lat, lon| lat.sin() + 0.5 * lon.sin());
+        let (d_lat, d_lon) = m.gradients();
+        let (lat, lon) = (0.3, 1.1);
+        assert!((d_lat.sample(lat, lon) - lat.cos()).abs() < 1e-3);
+        assert!((d_lon.sample(lat, lon) - 0.5 * lon.cos()).abs() < 1e-3);
+    }
+}
