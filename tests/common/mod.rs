@@ -1,0 +1,199 @@
+//! Shared helpers of the integration tests: scenes built from TOML text and
+//! independent references (solid angles, phase laws) written here, not taken
+//! from the renderer.
+#![allow(dead_code)]
+
+use std::path::Path;
+
+use glam::{DMat3, DQuat, DVec3};
+use optistim::render::detector::{render_scene, PixelGeometry, SceneImages};
+use optistim::render::Renderer;
+use optistim::scene::Scene;
+
+pub const AU: f64 = 149_597_870_700.0;
+
+/// Scalar-first quaternion of a camera at `pos` looking at `target`.
+pub fn look_at(pos: DVec3, target: DVec3) -> [f64; 4] {
+    let z = (target - pos).normalize();
+    let hint = if z.cross(DVec3::Z).length() > 1e-6 {
+        DVec3::Z
+    } else {
+        DVec3::X
+    };
+    let x = z.cross(hint).normalize();
+    let y = z.cross(x);
+    let q = DQuat::from_mat3(&DMat3::from_cols(x, y, z)).normalize();
+    [q.w, q.x, q.y, q.z]
+}
+
+/// Parameters of a test scene: body of radius `radius` at the origin, Sun
+/// along +x at `sun_au`, camera at `range` in the direction at phase `alpha`.
+pub struct Setup {
+    pub reflectance: String,
+    pub radius: f64,
+    pub range: f64,
+    pub alpha_deg: f64,
+    pub resolution: [usize; 2],
+    /// Focal length in pixels.
+    pub f_px: f64,
+    pub geometry: &'static str,
+    pub sun_au: f64,
+    /// Extra rotation of the boresight away from the body [deg] about the
+    /// camera's y axis.
+    pub off_axis_deg: f64,
+    pub extra_body: String,
+    pub extra_render: String,
+}
+
+impl Setup {
+    /// Body filling `diameter_px` pixels at `range` = `range_radii` radii.
+    pub fn new(reflectance: &str, alpha_deg: f64, range_radii: f64, diameter_px: f64) -> Self {
+        let radius = 1000.0;
+        let range = range_radii * radius;
+        let ang = (radius / range).asin();
+        let res = (diameter_px * 1.3).ceil() as usize + 8;
+        Setup {
+            reflectance: reflectance.into(),
+            radius,
+            range,
+            alpha_deg,
+            resolution: [res, res],
+            f_px: diameter_px / 2.0 / ang.tan(),
+            geometry: "exact",
+            sun_au: 1.0,
+            off_axis_deg: 0.0,
+            extra_body: String::new(),
+            extra_render: String::new(),
+        }
+    }
+
+    pub fn camera_position(&self) -> DVec3 {
+        let a = self.alpha_deg.to_radians();
+        DVec3::new(a.cos(), a.sin(), 0.0) * self.range
+    }
+
+    pub fn sun_position(&self) -> DVec3 {
+        DVec3::X * self.sun_au * AU
+    }
+
+    pub fn toml(&self) -> String {
+        let cam = self.camera_position();
+        let mut q = look_at(cam, DVec3::ZERO);
+        if self.off_axis_deg != 0.0 {
+            let base = DQuat::from_xyzw(q[1], q[2], q[3], q[0]);
+            let rot = base * DQuat::from_rotation_y(self.off_axis_deg.to_radians());
+            q = [rot.w, rot.x, rot.y, rot.z];
+        }
+        let sun = self.sun_position();
+        let pitch = 10e-6;
+        format!(
+            r#"
+[camera]
+resolution = [{w}, {h}]
+pixel_pitch = {pitch:e}
+focal_length = {f:e}
+f_number = 2.5
+exposure = 1e-3
+full_well = 1e30
+bits = 12
+band = [450e-9, 820e-9]
+
+[sun]
+spectrum = "blackbody"
+temperature = 5772.0
+irradiance_1au = 1361.0
+
+[body]
+radius = {r:e}
+reflectance = {refl}
+{extra_body}
+
+[state]
+camera_position = [{cx:e}, {cy:e}, {cz:e}]
+camera_attitude = [{q0:e}, {q1:e}, {q2:e}, {q3:e}]
+sun_position = [{sx:e}, {sy:e}, {sz:e}]
+
+[render]
+geometry = "{geom}"
+{extra_render}
+"#,
+            w = self.resolution[0],
+            h = self.resolution[1],
+            f = self.f_px * pitch,
+            r = self.radius,
+            refl = self.reflectance,
+            extra_body = self.extra_body,
+            cx = cam.x,
+            cy = cam.y,
+            cz = cam.z,
+            q0 = q[0],
+            q1 = q[1],
+            q2 = q[2],
+            q3 = q[3],
+            sx = sun.x,
+            sy = sun.y,
+            sz = sun.z,
+            geom = self.geometry,
+            extra_render = self.extra_render,
+        )
+    }
+
+    pub fn scene(&self) -> Scene {
+        Scene::from_toml(&self.toml(), Path::new("test-scene.toml")).expect("valid test scene")
+    }
+}
+
+/// Render through the whole chain.
+pub fn render(scene: &Scene) -> SceneImages {
+    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let pixels = PixelGeometry::new(&renderer);
+    render_scene(scene, &mut renderer, &pixels).expect("render")
+}
+
+/// Solid angle of a pixel, from an independent 2-D Gauss–Legendre
+/// quadrature of dx dy / (1 + x² + y²)^{3/2} (not the renderer's closed form).
+pub fn pixel_solid_angle(x0: f64, x1: f64, y0: f64, y1: f64) -> f64 {
+    const N: [f64; 3] = [-0.774_596_669_241_483_4, 0.0, 0.774_596_669_241_483_4];
+    const W: [f64; 3] = [5.0 / 9.0, 8.0 / 9.0, 5.0 / 9.0];
+    let (hx, hy) = (0.5 * (x1 - x0), 0.5 * (y1 - y0));
+    let (mx, my) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let mut s = 0.0;
+    for (a, wa) in N.iter().zip(W) {
+        for (b, wb) in N.iter().zip(W) {
+            let x = mx + hx * a;
+            let y = my + hy * b;
+            s += wa * wb / (1.0 + x * x + y * y).powf(1.5);
+        }
+    }
+    s * hx * hy
+}
+
+/// E = Σ L Ω cosθ over the image, θ from the line of sight to the body
+/// centre, with the test's own solid angles.
+pub fn irradiance_from_image(scene: &Scene, radiance: &[f32]) -> f64 {
+    let pin = &scene.camera.pinhole;
+    let st = &scene.state;
+    let los = (st.camera_attitude.inverse() * (st.body_position - st.camera_position)).normalize();
+    let mut e = 0.0;
+    for j in 0..pin.height {
+        for i in 0..pin.width {
+            let l = radiance[j * pin.width + i] as f64;
+            if l == 0.0 {
+                continue;
+            }
+            let x0 = (i as f64 - pin.cx) / pin.fx;
+            let x1 = (i as f64 + 1.0 - pin.cx) / pin.fx;
+            let y0 = (j as f64 - pin.cy) / pin.fy;
+            let y1 = (j as f64 + 1.0 - pin.cy) / pin.fy;
+            let dir = DVec3::new(0.5 * (x0 + x1), 0.5 * (y0 + y1), 1.0).normalize();
+            e += l * pixel_solid_angle(x0, x1, y0, y1) * dir.dot(los);
+        }
+    }
+    e
+}
+
+/// Solar irradiance in band at the body [W m⁻²].
+pub fn sun_at_body(scene: &Scene, images: &SceneImages) -> f64 {
+    let d = (scene.state.sun_position - scene.state.body_position).length();
+    images.summary.band_irradiance_1au_w_m2 * (AU / d).powi(2)
+}
