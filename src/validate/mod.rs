@@ -14,6 +14,8 @@
 //! | [`ssim`] | structural similarity (Wang et al. 2004) |
 //! | [`figure`] | side-by-side comparison PNGs |
 
+pub mod amie;
+pub mod ephem;
 pub mod pds3;
 pub mod raster;
 
