@@ -17,6 +17,7 @@
 pub mod amie;
 pub mod ephem;
 pub mod pds3;
+pub mod ssim;
 pub mod raster;
 
 pub use raster::Raster;
