@@ -14,6 +14,7 @@
 //! | [`ssim`] | structural similarity (Wang et al. 2004) |
 //! | [`figure`] | side-by-side comparison PNGs |
 
+pub mod align;
 pub mod amie;
 pub mod ephem;
 pub mod pds3;
