@@ -16,6 +16,7 @@
 
 pub mod align;
 pub mod amie;
+pub mod background;
 pub mod ephem;
 pub mod pds3;
 pub mod ssim;
