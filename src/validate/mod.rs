@@ -18,6 +18,7 @@ pub mod align;
 pub mod amie;
 pub mod background;
 pub mod ephem;
+pub mod figure;
 pub mod pds3;
 pub mod ssim;
 pub mod raster;
