@@ -2,6 +2,7 @@
 //! own derived values (phase, sub-solar point, boresight point), against the
 //! corner coordinates (attitude and image orientation) and against the image
 //! content (lit limb of 00208_00030, eclipse sliver of 00101_00010).
+#![allow(clippy::needless_range_loop)]
 
 use optistim::validate::amie::{self, AmieCamera, AmieObservation};
 use optistim::validate::Raster;

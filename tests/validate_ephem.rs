@@ -4,6 +4,7 @@
 //! DE421 kernel of the PyPI package `skyfield-data` (`de421.bsp`):
 //! `ts.utc(...)`, `eph['sun'|'moon'|'earth'].at(t).position.km`, giving
 //! geometric (no light time) ICRF ≈ J2000 vectors, km.
+#![allow(clippy::needless_range_loop)]
 
 use glam::DVec3;
 use optistim::validate::ephem::{self, Utc};
@@ -92,5 +93,5 @@ fn moon_rotation_model_sanity() {
     // One sidereal month later (27.321661 d) W advances by ~360 deg.
     let (_, _, w2) = ephem::moon_rotation_elements_deg(jd + 27.321661);
     let dw = (w2 - w).rem_euclid(360.0);
-    assert!(dw < 1.0 || dw > 359.0, "{dw}");
+    assert!(!(1.0..=359.0).contains(&dw), "{dw}");
 }

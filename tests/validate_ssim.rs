@@ -1,5 +1,6 @@
 //! SSIM (Wang et al. 2004) against closed forms, a slow direct
 //! implementation and reference numbers from scikit-image.
+#![allow(clippy::needless_range_loop)]
 
 use optistim::validate::ssim::{self, ssim};
 use optistim::validate::Raster;

@@ -30,6 +30,8 @@
 //! the detector centre (256, 256) (instrument kernel `CCD_CENTER` 256.5 in
 //! 1-based pixel indices). Pinhole, no distortion (none is published).
 
+#![allow(clippy::needless_range_loop)] // small fixed-size matrix code reads better with indices
+
 use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
@@ -213,7 +215,7 @@ fn exposure_s(label: &Label) -> Result<f64> {
             return Err(Error::parse(label.path(), format!("`EXPOSURE_DURATION`: unit {other:?}, expected <MS> or <S>")))
         }
     };
-    if !(v > 0.0) {
+    if v.is_nan() || v <= 0.0 {
         return Err(Error::parse(label.path(), format!("`EXPOSURE_DURATION`: {v} is not positive")));
     }
     Ok(v * scale)

@@ -21,6 +21,8 @@
 //! The dark level reported is the median of the sky pixels farther than the
 //! last halo ring from the limb.
 
+#![allow(clippy::needless_range_loop)] // small fixed-size matrix code reads better with indices
+
 use super::raster::Raster;
 use crate::error::{Error, Result};
 

@@ -92,7 +92,7 @@ pub fn ssim(a: &Raster, b: &Raster, data_range: f64) -> Result<SsimResult> {
     if a.width < WINDOW || a.height < WINDOW {
         return Err(Error::invalid("ssim", format!("images of {}x{} are smaller than the 11x11 window", a.width, a.height)));
     }
-    if !(data_range > 0.0) {
+    if data_range.is_nan() || data_range <= 0.0 {
         return Err(Error::invalid("ssim.data_range", format!("{data_range} must be positive")));
     }
     let (w, h) = (a.width, a.height);
