@@ -6,7 +6,12 @@ use optistim::validate::Raster;
 /// A smooth synthetic scene (a few Gaussian blobs and a soft-edged disk)
 /// evaluated at continuous coordinates, so shifted copies are exact.
 fn scene(x: f64, y: f64) -> f32 {
-    let blobs = [(40.0, 50.0, 5.0, 200.0), (80.0, 30.0, 3.0, 150.0), (70.0, 90.0, 7.0, 120.0), (25.0, 100.0, 4.0, 90.0)];
+    let blobs = [
+        (40.0, 50.0, 5.0, 200.0),
+        (80.0, 30.0, 3.0, 150.0),
+        (70.0, 90.0, 7.0, 120.0),
+        (25.0, 100.0, 4.0, 90.0),
+    ];
     let mut v = 20.0;
     for (cx, cy, s, a) in blobs {
         v += a * (-((x - cx).powi(2) + (y - cy).powi(2)) / (2.0 * s * s)).exp();
@@ -17,7 +22,9 @@ fn scene(x: f64, y: f64) -> f32 {
 }
 
 fn render(dx: f64, dy: f64) -> Raster {
-    Raster::from_fn(128, 128, |c, r| scene(c as f64 + 0.5 - dx, r as f64 + 0.5 - dy))
+    Raster::from_fn(128, 128, |c, r| {
+        scene(c as f64 + 0.5 - dx, r as f64 + 0.5 - dy)
+    })
 }
 
 #[test]
@@ -27,7 +34,10 @@ fn recovers_integer_shifts_exactly() {
         let moving = render(dx as f64, dy as f64);
         let a = ncc_align(&reference, &moving, 15).unwrap();
         assert_eq!(a.integer_shift, (dx, dy));
-        assert!((a.dx - dx as f64).abs() < 0.05 && (a.dy - dy as f64).abs() < 0.05, "{a:?}");
+        assert!(
+            (a.dx - dx as f64).abs() < 0.05 && (a.dy - dy as f64).abs() < 0.05,
+            "{a:?}"
+        );
         assert!(a.peak_ncc > 0.999);
     }
 }
@@ -40,7 +50,10 @@ fn recovers_subpixel_shifts() {
         let a = ncc_align(&reference, &moving, 12).unwrap();
         println!("true ({dx}, {dy}) found ({:.3}, {:.3})", a.dx, a.dy);
         // Parabolic refinement of a smooth correlation peak: bias < 0.15 px.
-        assert!((a.dx - dx).abs() < 0.15 && (a.dy - dy).abs() < 0.15, "{a:?}");
+        assert!(
+            (a.dx - dx).abs() < 0.15 && (a.dy - dy).abs() < 0.15,
+            "{a:?}"
+        );
     }
 }
 
@@ -56,7 +69,10 @@ fn shift_bilinear_undoes_the_shift() {
         }
     }
     let a = ncc_align(&reference, &shift_bilinear(&moving, -2.5, 2.5, 20.0), 5).unwrap();
-    assert!((a.dx - 0.5).abs() < 0.15 && (a.dy - 0.5).abs() < 0.15, "{a:?}");
+    assert!(
+        (a.dx - 0.5).abs() < 0.15 && (a.dy - 0.5).abs() < 0.15,
+        "{a:?}"
+    );
 }
 
 #[test]

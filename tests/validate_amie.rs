@@ -7,8 +7,14 @@
 use optistim::validate::amie::{self, AmieCamera, AmieObservation};
 use optistim::validate::Raster;
 
-const IMG1: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/data/amie/AMI_EE3_040819_00208_00030.IMG");
-const IMG2: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/data/amie/AMI_EE3_041028_00101_00010.IMG");
+const IMG1: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/data/amie/AMI_EE3_040819_00208_00030.IMG"
+);
+const IMG2: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/data/amie/AMI_EE3_041028_00101_00010.IMG"
+);
 
 fn load(p: &str) -> AmieObservation {
     amie::load(p).unwrap()
@@ -40,7 +46,10 @@ fn phase_angle_matches_label() {
         assert_eq!(s.label.phase_angle_deg, label);
         let c = s.geometry_check();
         let ph = c.phase_at_boresight_deg.expect("boresight hits the Moon");
-        println!("{}: phase at boresight {ph:.4}, at centre {:.4}, label {label}", s.label.product_id, c.phase_at_centre_deg);
+        println!(
+            "{}: phase at boresight {ph:.4}, at centre {:.4}, label {label}",
+            s.label.product_id, c.phase_at_centre_deg
+        );
         assert!((ph - label).abs() < 0.05, "{ph} vs {label}");
         assert!((c.phase_at_centre_deg - label).abs() < 0.15);
     }
@@ -56,7 +65,11 @@ fn sub_solar_point_matches_label() {
         let c = s.geometry_check();
         println!(
             "{}: sub-solar {:?} vs label {:?} ({:.4} deg); sub-spacecraft {:?}",
-            s.label.product_id, c.sub_solar_lat_lon_deg, s.label.sub_solar_lat_lon_deg, c.sub_solar_error_deg, c.sub_spacecraft_lat_lon_deg
+            s.label.product_id,
+            c.sub_solar_lat_lon_deg,
+            s.label.sub_solar_lat_lon_deg,
+            c.sub_solar_error_deg,
+            c.sub_spacecraft_lat_lon_deg
         );
         assert!(c.sub_solar_error_deg < 0.03, "{}", c.sub_solar_error_deg);
         // The label's Moon–Sun distance, used to scale the Sun vector.
@@ -88,7 +101,10 @@ fn corners_reproject_onto_corner_pixels() {
     for p in [IMG1, IMG2] {
         let s = load(p).scene;
         let r = s.pointing_residuals_px();
-        println!("{}: boresight+corner residuals {r:.3?} px, rms {:.3}", s.label.product_id, s.attitude_fit_rms_px);
+        println!(
+            "{}: boresight+corner residuals {r:.3?} px, rms {:.3}",
+            s.label.product_id, s.attitude_fit_rms_px
+        );
         assert!(r.iter().all(|&e| e < 1.5), "{r:?}");
     }
 }
@@ -99,7 +115,10 @@ fn a_row_or_column_flip_would_not_fit_the_corners() {
         let s = load(p).scene;
         let c = s.camera;
         let [tl, tr, br, bl] = c.corner_pixels();
-        for mirrored in [[bl, br, tr, tl] /* rows flipped */, [tr, tl, bl, br] /* columns flipped */] {
+        for mirrored in [
+            [bl, br, tr, tl], /* rows flipped */
+            [tr, tl, bl, br], /* columns flipped */
+        ] {
             let (_, r) = amie::fit_attitude(&c, &s.label, mirrored);
             let worst = r.iter().cloned().fold(0.0, f64::max);
             assert!(worst > 100.0, "mirrored grid fits too well: {r:?}");
@@ -123,7 +142,11 @@ fn centroid_above_background(img: &Raster, c: [f64; 2], half: usize) -> [f64; 2]
     for r in 0..n {
         for q in 0..n {
             if r < 8 || q < 8 || r >= n - 8 || q >= n - 8 {
-                let (x, y, v) = ((x0 + q) as f64, (y0 + r) as f64, img.get(x0 + q, y0 + r) as f64);
+                let (x, y, v) = (
+                    (x0 + q) as f64,
+                    (y0 + r) as f64,
+                    img.get(x0 + q, y0 + r) as f64,
+                );
                 let row = [x, y, 1.0];
                 for i in 0..3 {
                     for j in 0..3 {
@@ -136,7 +159,12 @@ fn centroid_above_background(img: &Raster, c: [f64; 2], half: usize) -> [f64; 2]
         }
     }
     let sol = solve3(ata, atb);
-    let sd = (frame.iter().map(|(x, y, v)| (v - sol[0] * x - sol[1] * y - sol[2]).powi(2)).sum::<f64>() / frame.len() as f64).sqrt();
+    let sd = (frame
+        .iter()
+        .map(|(x, y, v)| (v - sol[0] * x - sol[1] * y - sol[2]).powi(2))
+        .sum::<f64>()
+        / frame.len() as f64)
+        .sqrt();
     let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
     for r in 8..n - 8 {
         for q in 8..n - 8 {
@@ -205,7 +233,10 @@ fn image_content_confirms_orientation_image1() {
     }
     let s = solve3(ata, atb);
     let r = (s[2] + s[0] * s[0] + s[1] * s[1]).sqrt();
-    println!("limb fit centre ({:.1}, {:.1}) r {r:.1}; predicted {centre:.1?} r {radius:.1}", s[0], s[1]);
+    println!(
+        "limb fit centre ({:.1}, {:.1}) r {r:.1}; predicted {centre:.1?} r {radius:.1}",
+        s[0], s[1]
+    );
     assert!((s[0] - centre[0]).hypot(s[1] - centre[1]) < 8.0);
     assert!((r / radius - 1.0).abs() < 0.02);
 }
@@ -217,7 +248,11 @@ fn image_content_confirms_orientation_image2() {
     // sliver on the side away from the shadow axis is lit, although the
     // phase angle is 9.3°. The sliver's side fixes the orientation.
     let o = load(IMG2);
-    let (axis_km, umbra_km) = o.scene.geometry_check().earth_shadow.expect("Moon behind the Earth");
+    let (axis_km, umbra_km) = o
+        .scene
+        .geometry_check()
+        .earth_shadow
+        .expect("Moon behind the Earth");
     println!("shadow axis distance {axis_km:.0} km, umbra radius {umbra_km:.0} km");
     assert!(axis_km < umbra_km && axis_km + 1737.4 > umbra_km);
     let (centre, _) = o.scene.moon_disk_px().unwrap();
@@ -229,7 +264,9 @@ fn image_content_confirms_orientation_image2() {
     let ok = dir(&o.image);
     let rows = dir(&o.image.flipped_rows());
     let cols = dir(&Raster::from_fn(512, 512, |c, r| o.image.get(511 - c, r)));
-    println!("sliver direction cos: as stored {ok:.3}, rows flipped {rows:.3}, cols flipped {cols:.3}");
+    println!(
+        "sliver direction cos: as stored {ok:.3}, rows flipped {rows:.3}, cols flipped {cols:.3}"
+    );
     assert!(ok > 0.6 && rows < 0.3 && cols < 0.3);
 }
 

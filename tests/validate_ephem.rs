@@ -37,15 +37,31 @@ fn utc_to_tt() {
         let t = Utc::parse(r.utc).unwrap();
         assert_eq!(t.tai_minus_utc(), 32.0);
         // 1e-8 day = 0.9 ms.
-        assert!((t.jd_tt() - r.jd_tt).abs() < 1e-8, "{} {}", t.jd_tt(), r.jd_tt);
+        assert!(
+            (t.jd_tt() - r.jd_tt).abs() < 1e-8,
+            "{} {}",
+            t.jd_tt(),
+            r.jd_tt
+        );
     }
-    assert_eq!(Utc::parse("2017-01-01T00:00:00").unwrap().tai_minus_utc(), 37.0);
-    assert_eq!(Utc::parse("2005-12-31T23:59:59").unwrap().tai_minus_utc(), 32.0);
-    assert_eq!(Utc::parse("2004-232T23:42:43.134").unwrap(), Utc::parse("2004-08-19T23:42:43.134").unwrap());
+    assert_eq!(
+        Utc::parse("2017-01-01T00:00:00").unwrap().tai_minus_utc(),
+        37.0
+    );
+    assert_eq!(
+        Utc::parse("2005-12-31T23:59:59").unwrap().tai_minus_utc(),
+        32.0
+    );
+    assert_eq!(
+        Utc::parse("2004-232T23:42:43.134").unwrap(),
+        Utc::parse("2004-08-19T23:42:43.134").unwrap()
+    );
     assert!(Utc::parse("2004-13-01T00:00:00").is_err());
     assert!(Utc::parse("yesterday").is_err());
     // J2000.0 epoch: 2000-01-01T11:58:55.816 UTC = 12:00 TT.
-    assert!((Utc::parse("2000-01-01T11:58:55.816").unwrap().jd_tt() - ephem::JD_J2000).abs() < 1e-9);
+    assert!(
+        (Utc::parse("2000-01-01T11:58:55.816").unwrap().jd_tt() - ephem::JD_J2000).abs() < 1e-9
+    );
 }
 
 #[test]
@@ -65,9 +81,14 @@ fn sun_and_moon_vs_de421() {
         let d = (moon - moon_ref).length() / 1e3;
         assert!(d < 2500.0, "moon position error {d} km");
         // What matters for shading: the Sun seen from the Moon.
-        let s = ephem::sun_from_moon_j2000(jd).angle_between(sun_ref - moon_ref).to_degrees();
+        let s = ephem::sun_from_moon_j2000(jd)
+            .angle_between(sun_ref - moon_ref)
+            .to_degrees();
         assert!(s < 0.005, "selenocentric sun direction error {s} deg");
-        println!("{}: sun {a:.4} deg, moon {d:.0} km, sun from moon {s:.4} deg", r.utc);
+        println!(
+            "{}: sun {a:.4} deg, moon {d:.0} km, sun from moon {s:.4} deg",
+            r.utc
+        );
     }
 }
 
@@ -88,7 +109,11 @@ fn moon_rotation_model_sanity() {
     let node = DVec3::Z.cross(pole).normalize();
     let x = m * DVec3::X;
     let ang = node.angle_between(x).to_degrees();
-    let signed = if node.cross(x).dot(pole) >= 0.0 { ang } else { 360.0 - ang };
+    let signed = if node.cross(x).dot(pole) >= 0.0 {
+        ang
+    } else {
+        360.0 - ang
+    };
     assert!((signed - w).abs() < 1e-6, "{signed} vs {w}");
     // One sidereal month later (27.321661 d) W advances by ~360 deg.
     let (_, _, w2) = ephem::moon_rotation_elements_deg(jd + 27.321661);

@@ -14,7 +14,18 @@ fn four_panels_with_separators() {
     let s = ssim(&real, &render, 100.0).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("cmp.png");
-    figure::write_comparison_png(&p, &real, &render, &s, &FigureOptions { grey_max: Some(68.0), diff_range: Some(20.0), gamma: None }).unwrap();
+    figure::write_comparison_png(
+        &p,
+        &real,
+        &render,
+        &s,
+        &FigureOptions {
+            grey_max: Some(68.0),
+            diff_range: Some(20.0),
+            gamma: None,
+        },
+    )
+    .unwrap();
     let img = image::open(&p).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), ((4 * w + 3) as u32, h as u32));
     for k in 1..4u32 {

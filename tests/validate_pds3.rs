@@ -3,15 +3,24 @@
 
 use optistim::validate::pds3::{read_image, Label, Value};
 
-const IMG1: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/data/amie/AMI_EE3_040819_00208_00030.IMG");
-const IMG2: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/data/amie/AMI_EE3_041028_00101_00010.IMG");
+const IMG1: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/data/amie/AMI_EE3_040819_00208_00030.IMG"
+);
+const IMG2: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/data/amie/AMI_EE3_041028_00101_00010.IMG"
+);
 
 #[test]
 fn parses_the_amie_label() {
     let label = Label::read(IMG1).unwrap();
     let r = &label.root;
     assert_eq!(r.string("PDS_VERSION_ID").unwrap(), "PDS3");
-    assert_eq!(r.string("FILE_NAME").unwrap(), "AMI_EE3_040819_00208_00030.IMG");
+    assert_eq!(
+        r.string("FILE_NAME").unwrap(),
+        "AMI_EE3_040819_00208_00030.IMG"
+    );
     assert_eq!(r.i64("RECORD_BYTES").unwrap(), 1024);
     assert_eq!(r.i64("LABEL_RECORDS").unwrap(), 20);
     // Multi-line quoted string, collapsed.
@@ -20,7 +29,10 @@ fn parses_the_amie_label() {
         "SMART-1 LUNAR/OTHER AMIE 2 EDR RAW DATA EARTH ESCAPE PHASE V1.1"
     );
     // Units.
-    assert_eq!(r.f64_with_unit("EXPOSURE_DURATION").unwrap(), (30.0, Some("MS".into())));
+    assert_eq!(
+        r.f64_with_unit("EXPOSURE_DURATION").unwrap(),
+        (30.0, Some("MS".into()))
+    );
     assert_eq!(r.f64_in("TARGET_CENTER_DISTANCE", "KM").unwrap(), 197936.0);
     assert!(r.f64_in("TARGET_CENTER_DISTANCE", "M").is_err());
     assert_eq!(r.f64_in("PHASE_ANGLE", "DEG").unwrap(), 105.18);
@@ -38,7 +50,13 @@ fn parses_the_amie_label() {
     assert_eq!(img.i64("LINES").unwrap(), 512);
     assert_eq!(img.string("SAMPLE_TYPE").unwrap(), "LSB_UNSIGNED_INTEGER");
     assert_eq!(img.f64("SCALING_FACTOR").unwrap(), 0.015625);
-    assert_eq!(r.object("BROWSE_IMAGE").unwrap().i64("SAMPLE_BITS").unwrap(), 8);
+    assert_eq!(
+        r.object("BROWSE_IMAGE")
+            .unwrap()
+            .i64("SAMPLE_BITS")
+            .unwrap(),
+        8
+    );
     // Pointers: 1-based bytes -> 0-based offset.
     assert_eq!(label.pointer("IMAGE").unwrap(), 36864);
     assert_eq!(label.pointer("BROWSE_IMAGE").unwrap(), 20480);
@@ -50,10 +68,28 @@ fn parses_the_amie_label() {
 fn missing_and_mistyped_keys_name_file_and_key() {
     let label = Label::read(IMG1).unwrap();
     let e = label.root.f64("NO_SUCH_KEY").unwrap_err().to_string();
-    assert!(e.contains("AMI_EE3_040819_00208_00030.IMG") && e.contains("NO_SUCH_KEY"), "{e}");
-    let e = label.root.f64("RETICLE_POINT_LATITUDE").unwrap_err().to_string(); // "N/A"
-    assert!(e.contains("RETICLE_POINT_LATITUDE") && e.contains("expected a number") && e.contains("N/A"), "{e}");
-    let e = label.root.object("IMAGE").unwrap().f64("NOPE").unwrap_err().to_string();
+    assert!(
+        e.contains("AMI_EE3_040819_00208_00030.IMG") && e.contains("NO_SUCH_KEY"),
+        "{e}"
+    );
+    let e = label
+        .root
+        .f64("RETICLE_POINT_LATITUDE")
+        .unwrap_err()
+        .to_string(); // "N/A"
+    assert!(
+        e.contains("RETICLE_POINT_LATITUDE")
+            && e.contains("expected a number")
+            && e.contains("N/A"),
+        "{e}"
+    );
+    let e = label
+        .root
+        .object("IMAGE")
+        .unwrap()
+        .f64("NOPE")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("OBJECT IMAGE") && e.contains("NOPE"), "{e}");
 }
 
@@ -73,13 +109,20 @@ fn reads_the_amie_image() {
         let bytes = std::fs::read(path).unwrap();
         assert_eq!(img.raw[0], u16::from_le_bytes([bytes[36864], bytes[36865]]));
         let last = 36864 + 2 * (512 * 512 - 1);
-        assert_eq!(img.raw[512 * 512 - 1], u16::from_le_bytes([bytes[last], bytes[last + 1]]));
+        assert_eq!(
+            img.raw[512 * 512 - 1],
+            u16::from_le_bytes([bytes[last], bytes[last + 1]])
+        );
     }
     // Image 1: the sky is ~30-50 DN and the lit crescent reaches >700 DN.
     let img = read_image(IMG1).unwrap();
     let mut v = img.scaled.data.clone();
     v.sort_by(|a, b| a.partial_cmp(b).unwrap());
-    assert!((30.0..50.0).contains(&v[v.len() / 2]), "median {}", v[v.len() / 2]);
+    assert!(
+        (30.0..50.0).contains(&v[v.len() / 2]),
+        "median {}",
+        v[v.len() / 2]
+    );
     assert!(v[v.len() * 999 / 1000] > 700.0);
 }
 
@@ -103,7 +146,10 @@ fn truncated_file_is_an_error() {
     let p = dir.path().join("quote_cut.lbl");
     std::fs::write(&p, &text[..at]).unwrap();
     let e = Label::read(&p).unwrap_err().to_string();
-    assert!(e.contains("quote_cut.lbl") && e.contains("unterminated quoted string"), "{e}");
+    assert!(
+        e.contains("quote_cut.lbl") && e.contains("unterminated quoted string"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -112,16 +158,29 @@ fn foreign_files_are_refused() {
     let p = dir.path().join("image.png");
     std::fs::write(&p, b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR").unwrap();
     let e = Label::read(&p).unwrap_err().to_string();
-    assert!(e.contains("image.png") && e.contains("not a PDS3 file"), "{e}");
+    assert!(
+        e.contains("image.png") && e.contains("not a PDS3 file"),
+        "{e}"
+    );
     let p = dir.path().join("other.lbl");
     std::fs::write(&p, "PDS_VERSION_ID = PDS4\nEND\n").unwrap();
-    assert!(Label::read(&p).unwrap_err().to_string().contains("not a PDS3 file"));
+    assert!(Label::read(&p)
+        .unwrap_err()
+        .to_string()
+        .contains("not a PDS3 file"));
     let p = dir.path().join("odl.lbl");
     std::fs::write(&p, "ODL_VERSION_ID = ODL3\nEND\n").unwrap();
-    assert!(Label::read(&p).unwrap_err().to_string().contains("not a PDS3 file"));
+    assert!(Label::read(&p)
+        .unwrap_err()
+        .to_string()
+        .contains("not a PDS3 file"));
     // A label without an IMAGE object cannot be read as an image.
     let p = dir.path().join("noimage.lbl");
-    std::fs::write(&p, "PDS_VERSION_ID = PDS3\r\nRECORD_TYPE = STREAM\r\nEND\r\n").unwrap();
+    std::fs::write(
+        &p,
+        "PDS_VERSION_ID = PDS3\r\nRECORD_TYPE = STREAM\r\nEND\r\n",
+    )
+    .unwrap();
     let e = read_image(&p).unwrap_err().to_string();
     assert!(e.contains("noimage.lbl") && e.contains("IMAGE"), "{e}");
 }
@@ -153,7 +212,10 @@ binary \x00\x01 follows"#;
     let r = &label.root;
     assert_eq!(r.f64_with_unit("A").unwrap(), (1.5, Some("KM".into())));
     assert_eq!(r.string("B").unwrap(), "multi line");
-    assert_eq!(r.f64_seq("C").unwrap(), (vec![1.0, 2.5, -300.0], Some("DEG".into())));
+    assert_eq!(
+        r.f64_seq("C").unwrap(),
+        (vec![1.0, 2.5, -300.0], Some("DEG".into()))
+    );
     assert!(matches!(r.get("D").unwrap(), Value::Sequence { items, .. } if items.len() == 2));
     assert!(matches!(r.get("E").unwrap(), Value::Sequence { items, .. } if items.len() == 2));
     assert!(r.f64_seq("E").is_err());
@@ -161,13 +223,30 @@ binary \x00\x01 follows"#;
     assert_eq!(label.pointer("G").unwrap(), 200); // records, 1-based
     assert_eq!(r.f64("H").unwrap(), 255.0);
     assert_eq!(r.string("I").unwrap(), "2004-08-19T23:42:43.134");
-    assert_eq!(r.object("OUTER").unwrap().object("INNER").unwrap().i64("X").unwrap(), 7);
+    assert_eq!(
+        r.object("OUTER")
+            .unwrap()
+            .object("INNER")
+            .unwrap()
+            .i64("X")
+            .unwrap(),
+        7
+    );
     // Unbalanced objects.
-    let e = Label::parse(b"PDS_VERSION_ID = PDS3\nOBJECT = A\nEND\n", "x.lbl").unwrap_err().to_string();
+    let e = Label::parse(b"PDS_VERSION_ID = PDS3\nOBJECT = A\nEND\n", "x.lbl")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("END_OBJECT"), "{e}");
-    let e = Label::parse(b"PDS_VERSION_ID = PDS3\nOBJECT = A\nEND_OBJECT = B\nEND\n", "x.lbl").unwrap_err().to_string();
+    let e = Label::parse(
+        b"PDS_VERSION_ID = PDS3\nOBJECT = A\nEND_OBJECT = B\nEND\n",
+        "x.lbl",
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("closes OBJECT `A`"), "{e}");
     // No END at all.
-    let e = Label::parse(b"PDS_VERSION_ID = PDS3\nA = 1\n", "x.lbl").unwrap_err().to_string();
+    let e = Label::parse(b"PDS_VERSION_ID = PDS3\nA = 1\n", "x.lbl")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("truncated"), "{e}");
 }

@@ -9,12 +9,14 @@ use optistim::validate::Raster;
 fn pair() -> (Raster, Raster) {
     let a = Raster::from_fn(32, 24, |x, y| {
         let (xf, yf) = (x as f64, y as f64);
-        (100.0 + 80.0 * (0.3 * xf).sin() * (0.2 * yf).cos() + 10.0 * ((x * 7 + y * 13) % 11) as f64).round() as f32
+        (100.0 + 80.0 * (0.3 * xf).sin() * (0.2 * yf).cos() + 10.0 * ((x * 7 + y * 13) % 11) as f64)
+            .round() as f32
     });
     let b = Raster::from_fn(32, 24, |x, y| {
         let (xf, yf) = (x as f64, y as f64);
         let av = a.get(x, y) as f64;
-        (0.9 * av + 20.0 + 15.0 * (0.5 * xf + 0.1 * yf).cos() + 5.0 * ((x * 3 + y * 5) % 7) as f64).round() as f32
+        (0.9 * av + 20.0 + 15.0 * (0.5 * xf + 0.1 * yf).cos() + 5.0 * ((x * 3 + y * 5) % 7) as f64)
+            .round() as f32
     });
     (a, b)
 }
@@ -31,8 +33,18 @@ fn matches_scikit_image() {
     // which is exactly the "valid" map of Wang's ssim_index.m.
     let (a, b) = pair();
     for (l, mean, s55, s12_20) in [
-        (255.0, 0.9221357419802165, 0.9344618722683239, 0.8950083982536848),
-        (1023.0, 0.9385786875817095, 0.9514021884559227, 0.9202630772832634),
+        (
+            255.0,
+            0.9221357419802165,
+            0.9344618722683239,
+            0.8950083982536848,
+        ),
+        (
+            1023.0,
+            0.9385786875817095,
+            0.9514021884559227,
+            0.9202630772832634,
+        ),
     ] {
         let r = ssim(&a, &b, l).unwrap();
         assert!((r.mssim - mean).abs() < 1e-9, "{} vs {mean}", r.mssim);
@@ -70,13 +82,19 @@ fn direct(a: &Raster, b: &Raster, l: f64) -> (Vec<f64>, Vec<[f64; 3]>) {
             for i in 0..11 {
                 for j in 0..11 {
                     let wt = w[i][j] / tot;
-                    let (dx, dy) = (a.get(c + j, r + i) as f64 - mx, b.get(c + j, r + i) as f64 - my);
+                    let (dx, dy) = (
+                        a.get(c + j, r + i) as f64 - mx,
+                        b.get(c + j, r + i) as f64 - my,
+                    );
                     vx += wt * dx * dx;
                     vy += wt * dy * dy;
                     cxy += wt * dx * dy;
                 }
             }
-            maps.push(((2.0 * mx * my + c1) * (2.0 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2)));
+            maps.push(
+                ((2.0 * mx * my + c1) * (2.0 * cxy + c2))
+                    / ((mx * mx + my * my + c1) * (vx + vy + c2)),
+            );
             let (sx, sy) = (vx.sqrt(), vy.sqrt());
             comps.push([
                 (2.0 * mx * my + c1) / (mx * mx + my * my + c1),
@@ -129,7 +147,11 @@ fn constant_shift_changes_only_luminance() {
         let b = Raster::filled(30, 30, (mu + delta) as f32);
         let r = ssim(&a, &b, l).unwrap();
         let expect = 1.0 - delta * delta / (mu * mu + (mu + delta).powi(2) + c1);
-        assert!((r.luminance - expect).abs() < 1e-9, "{} vs {expect}", r.luminance);
+        assert!(
+            (r.luminance - expect).abs() < 1e-9,
+            "{} vs {expect}",
+            r.luminance
+        );
         assert!((r.contrast - 1.0).abs() < 1e-12 && (r.structure - 1.0).abs() < 1e-12);
         assert!((r.mssim - expect).abs() < 1e-9);
     }
@@ -139,7 +161,12 @@ fn constant_shift_changes_only_luminance() {
     let delta = 30.0;
     let b = Raster::from_fn(a.width, a.height, |x, y| a.get(x, y) + delta as f32);
     let r = ssim(&a, &b, l).unwrap();
-    assert!((r.contrast - 1.0).abs() < 1e-9 && (r.structure - 1.0).abs() < 1e-9, "{} {}", r.contrast, r.structure);
+    assert!(
+        (r.contrast - 1.0).abs() < 1e-9 && (r.structure - 1.0).abs() < 1e-9,
+        "{} {}",
+        r.contrast,
+        r.structure
+    );
     assert!(r.luminance < 1.0);
     let (_, comps) = direct(&a, &b, l);
     for (i, c) in comps.iter().enumerate() {

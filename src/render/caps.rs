@@ -140,6 +140,42 @@ pub struct Frame<'a> {
     /// Minimum caps along each axis of the whole lune.
     pub min_caps: f64,
     pub distant: bool,
+    /// Occulter centre (Lester coordinates, relative to the body centre)
+    /// and radius, when its shadow can reach the body.
+    pub occulter: Option<(DVec3, f64)>,
+}
+
+/// Radius of the solar photosphere [m].
+pub const SUN_RADIUS: f64 = 6.957e8;
+
+/// Fraction of the solar disk (uniform, no limb darkening) seen from `p`
+/// past a spherical occulter; Sun and occulter centres relative to `p`.
+pub fn visible_sun_fraction(sun: DVec3, occulter: DVec3, occulter_radius: f64) -> f64 {
+    let (ds, dox) = (sun.length(), occulter.length());
+    if dox >= ds {
+        return 1.0;
+    }
+    let a = (SUN_RADIUS / ds).min(1.0).asin();
+    if dox <= occulter_radius {
+        return 0.0;
+    }
+    let b = (occulter_radius / dox).asin();
+    let c = sun.cross(occulter).length().atan2(sun.dot(occulter));
+    if c >= a + b {
+        return 1.0;
+    }
+    if c + a <= b {
+        return 0.0;
+    }
+    if c + b <= a {
+        return 1.0 - (b / a).powi(2);
+    }
+    // Lens-shaped overlap of two disks on the sky (small-angle plane).
+    let ca = ((c * c + a * a - b * b) / (2.0 * c * a)).clamp(-1.0, 1.0);
+    let cb = ((c * c + b * b - a * a) / (2.0 * c * b)).clamp(-1.0, 1.0);
+    let k = ((-c + a + b) * (c + a - b) * (c - a + b) * (c + a + b)).max(0.0);
+    let overlap = a * a * ca.acos() + b * b * cb.acos() - 0.5 * k.sqrt();
+    (1.0 - overlap / (std::f64::consts::PI * a * a)).clamp(0.0, 1.0)
 }
 
 /// Projection of a lune point, or None behind the camera.
@@ -418,9 +454,23 @@ impl Frame<'_> {
                 return 0.0;
             }
             let g = ScatteringGeometry { mu0, mu, cos_g };
-            return model.radiance_factor(&g, albedo) * (AU * AU / sun_sq) * mu / cam_sq;
+            let shadow = self.sun_fraction(n_local * r);
+            return model.radiance_factor(&g, albedo) * (AU * AU / sun_sq) * mu / cam_sq * shadow;
         }
         self.relief_integrand(n_local, n_body, cam_local, d_sun, r, model, albedo)
+    }
+
+    /// Share of the solar disk lighting a point (Lester coordinates).
+    #[inline]
+    fn sun_fraction(&self, p: DVec3) -> f64 {
+        match self.occulter {
+            None => 1.0,
+            Some((centre, radius)) => visible_sun_fraction(
+                DVec3::new(self.lune.sun_range, 0.0, 0.0) - p,
+                centre - p,
+                radius,
+            ),
+        }
     }
 
     /// Integrand with displacement and/or normal maps: local radius from the
@@ -477,6 +527,7 @@ impl Frame<'_> {
         }
         let area_scale = (r / radius) * (r / radius);
         model.radiance_factor(&g, albedo) * (AU * AU / sun_sq) * projected * area_scale / cam_sq
+            * self.sun_fraction(p)
     }
 }
 
@@ -621,6 +672,24 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sun_fraction_limits_and_partial_overlap() {
+        let sun = DVec3::X * 1.5e11;
+        let a = (SUN_RADIUS / 1.5e11).asin();
+        // Occulter far off the line: full Sun; centred and larger: none.
+        assert_eq!(visible_sun_fraction(sun, DVec3::Y * 1e8, 1e6), 1.0);
+        assert_eq!(visible_sun_fraction(sun, DVec3::X * 1e8, 1e7), 0.0);
+        // Half-overlap of equal disks: separation c = a gives the lens area
+        // 2a²·acos(1/2) − (a²/2)·√3 (independent closed form).
+        let d = 1e9;
+        let b_radius = d * a.sin();
+        let occ = DVec3::new(a.cos(), a.sin(), 0.0) * d;
+        let f = visible_sun_fraction(sun, occ, b_radius);
+        let lens = 2.0 * a * a * (0.5f64).acos() - 0.5 * a * a * 3f64.sqrt();
+        let expected = 1.0 - lens / (std::f64::consts::PI * a * a);
+        assert!((f - expected).abs() < 1e-3, "{f} vs {expected}");
+    }
 
     #[test]
     fn gridding_splits_by_exact_area() {

@@ -169,7 +169,7 @@ mod tests {
         let cam = DVec3::new(0.3, 2.0, 0.4);
         let sun = DVec3::new(1e9, 1.0, 0.0);
         let l = Lune::new(cam, sun, 1.0, false);
-        for theta in [0.8, 1.2, 1.57, 2.0] {
+        for theta in [0.8f64, 1.2, 1.57, 2.0] {
             let (lo, hi) = l.phi_range(theta.sin());
             assert!(hi > lo);
             for phi in [lo, hi] {

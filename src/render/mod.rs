@@ -198,6 +198,19 @@ impl Renderer {
             density: settings.density(),
             min_caps: settings.min_caps as f64,
             distant,
+            occulter: state.occulter.and_then(|o| {
+                let rel = o.position - state.body_position;
+                let local = DVec3::new(rel.dot(lune.x), rel.dot(lune.y), rel.dot(lune.z));
+                // Skip the per-cap test when no point of the body can be in
+                // the penumbra (margin: the body's own angular size).
+                let sun_dir = DVec3::X;
+                let dist = local.length();
+                let sep = sun_dir.cross(local).length().atan2(sun_dir.dot(local));
+                let a = (caps::SUN_RADIUS / lune.sun_range).asin();
+                let b = (o.radius / dist).min(1.0).asin();
+                let margin = 2.0 * (body.radius / dist).min(1.0).asin();
+                (dist < lune.sun_range && sep < a + b + margin).then_some((local, o.radius))
+            }),
         };
 
         // Lay out the caps: recursive split with culling.

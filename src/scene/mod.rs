@@ -97,6 +97,20 @@ pub struct State {
     pub camera_attitude: DQuat,
     /// Sun centre [m].
     pub sun_position: DVec3,
+    /// A sphere that can shadow the body (e.g. the Earth in a lunar
+    /// eclipse); the Sun is an extended disk, so penumbrae are graded.
+    pub occulter: Option<Occulter>,
+}
+
+/// A sphere casting a shadow on the body.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Occulter {
+    /// Centre [m], world frame.
+    pub position: DVec3,
+    /// Shadow-casting radius [m] (for the Earth, include the ~2 %
+    /// enlargement of the umbra by the atmosphere if wanted).
+    pub radius: f64,
 }
 
 impl State {
@@ -130,6 +144,14 @@ impl State {
                 format!("{field}.camera_position"),
                 format!("camera is inside the body ({camera_range} m from its centre, radius {radius} m)"),
             ));
+        }
+        if let Some(o) = &self.occulter {
+            if !o.position.is_finite() || !(o.radius.is_finite() && o.radius > 0.0) {
+                return Err(Error::invalid(
+                    format!("{field}.occulter"),
+                    "needs a finite position and a radius > 0",
+                ));
+            }
         }
         if (self.sun_position - self.body_position).length() <= radius {
             return Err(Error::invalid(
@@ -268,6 +290,7 @@ struct StateFile {
     camera_position: [f64; 3],
     camera_attitude: [f64; 4],
     sun_position: [f64; 3],
+    occulter: Option<Occulter>,
 }
 
 fn identity_quaternion() -> [f64; 4] {
@@ -369,6 +392,7 @@ impl Scene {
             camera_position: vector(s.camera_position, "state.camera_position")?,
             camera_attitude: quaternion(s.camera_attitude, "state.camera_attitude")?,
             sun_position: vector(s.sun_position, "state.sun_position")?,
+            occulter: s.occulter,
         };
         state.check(radius, "state")?;
         file.render.check()?;

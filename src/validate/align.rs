@@ -76,7 +76,13 @@ pub fn ncc_align(reference: &Raster, moving: &Raster, max_shift: usize) -> Resul
     reference.check_same_size(moving, "ncc_align")?;
     let m = max_shift as i32;
     if 2 * m + 2 > reference.width.min(reference.height) as i32 {
-        return Err(Error::invalid("ncc_align.max_shift", format!("±{max_shift} px is too large for a {}x{} image", reference.width, reference.height)));
+        return Err(Error::invalid(
+            "ncc_align.max_shift",
+            format!(
+                "±{max_shift} px is too large for a {}x{} image",
+                reference.width, reference.height
+            ),
+        ));
     }
     // Search one pixel beyond the window so the refinement has neighbours.
     let side = 2 * (m + 1) + 1;
@@ -99,7 +105,12 @@ pub fn ncc_align(reference: &Raster, moving: &Raster, max_shift: usize) -> Resul
     let (bx, by) = best;
     let fx = parabola_peak(at(bx - 1, by), best_v, at(bx + 1, by));
     let fy = parabola_peak(at(bx, by - 1), best_v, at(bx, by + 1));
-    Ok(Alignment { dx: bx as f64 + fx, dy: by as f64 + fy, peak_ncc: best_v, integer_shift: best })
+    Ok(Alignment {
+        dx: bx as f64 + fx,
+        dy: by as f64 + fy,
+        peak_ncc: best_v,
+        integer_shift: best,
+    })
 }
 
 /// `out(x, y) = img(x − dx, y − dy)` with bilinear interpolation; samples
@@ -118,7 +129,8 @@ pub fn shift_bilinear(img: &Raster, dx: f64, dy: f64, fill: f32) -> Raster {
                 img.get(xx as usize, yy as usize) as f64
             }
         };
-        let v = (1.0 - ty) * ((1.0 - tx) * px(x0, y0) + tx * px(x0 + 1, y0)) + ty * ((1.0 - tx) * px(x0, y0 + 1) + tx * px(x0 + 1, y0 + 1));
+        let v = (1.0 - ty) * ((1.0 - tx) * px(x0, y0) + tx * px(x0 + 1, y0))
+            + ty * ((1.0 - tx) * px(x0, y0 + 1) + tx * px(x0 + 1, y0 + 1));
         v as f32
     })
 }

@@ -86,7 +86,12 @@ impl AmieCamera {
     /// (pixel centres at +0.5).
     pub fn pixel_to_ray(&self, u: f64, v: f64) -> DVec3 {
         let f = self.focal_px();
-        DVec3::new((u - self.principal_point_px.0) / f, (v - self.principal_point_px.1) / f, 1.0).normalize()
+        DVec3::new(
+            (u - self.principal_point_px.0) / f,
+            (v - self.principal_point_px.1) / f,
+            1.0,
+        )
+        .normalize()
     }
 
     /// Pixel coordinates of a camera-frame point, `None` behind the camera.
@@ -95,14 +100,22 @@ impl AmieCamera {
             return None;
         }
         let f = self.focal_px();
-        Some([self.principal_point_px.0 + f * p.x / p.z, self.principal_point_px.1 + f * p.y / p.z])
+        Some([
+            self.principal_point_px.0 + f * p.x / p.z,
+            self.principal_point_px.1 + f * p.y / p.z,
+        ])
     }
 
     /// Pixel coordinates of the centres of the four corner pixels, in the
     /// order of the label's corner coordinates (see the module doc).
     pub fn corner_pixels(&self) -> [[f64; 2]; 4] {
         let (w, h) = (self.resolution.0 as f64, self.resolution.1 as f64);
-        [[0.5, 0.5], [w - 0.5, 0.5], [w - 0.5, h - 0.5], [0.5, h - 0.5]]
+        [
+            [0.5, 0.5],
+            [w - 0.5, 0.5],
+            [w - 0.5, h - 0.5],
+            [0.5, h - 0.5],
+        ]
     }
 }
 
@@ -172,11 +185,19 @@ pub fn load(path: impl AsRef<Path>) -> Result<AmieObservation> {
     let scene = scene_from_label(&img.label)?;
     let (w, h) = scene.camera.resolution;
     if img.scaled.width != w as usize || img.scaled.height != h as usize {
-        return Err(Error::parse(path.as_ref(), format!(
-            "AMIE image is {}x{}, expected {w}x{h}", img.scaled.width, img.scaled.height
-        )));
+        return Err(Error::parse(
+            path.as_ref(),
+            format!(
+                "AMIE image is {}x{}, expected {w}x{h}",
+                img.scaled.width, img.scaled.height
+            ),
+        ));
     }
-    let image = if ROWS_FLIPPED { img.scaled.flipped_rows() } else { img.scaled };
+    let image = if ROWS_FLIPPED {
+        img.scaled.flipped_rows()
+    } else {
+        img.scaled
+    };
     Ok(AmieObservation { scene, image })
 }
 
@@ -197,9 +218,18 @@ fn label_geometry(label: &Label) -> Result<LabelGeometry> {
         phase_angle_deg: r.f64_in("PHASE_ANGLE", "DEG")?,
         incidence_angle_deg: r.f64_in("INCIDENCE_ANGLE", "DEG")?,
         emission_angle_deg: r.f64_in("EMISSION_ANGLE", "DEG")?,
-        sub_solar_lat_lon_deg: (r.f64_in("SUB_SOLAR_LATITUDE", "DEG")?, r.f64_in("SUB_SOLAR_LONGITUDE", "DEG")?),
-        center_lat_lon_deg: (r.f64_in("CENTER_LATITUDE", "DEG")?, r.f64_in("CENTER_LONGITUDE", "DEG")?),
-        boresight_ra_dec_deg: (r.f64_in("RIGHT_ASCENSION", "DEG")?, r.f64_in("DECLINATION", "DEG")?),
+        sub_solar_lat_lon_deg: (
+            r.f64_in("SUB_SOLAR_LATITUDE", "DEG")?,
+            r.f64_in("SUB_SOLAR_LONGITUDE", "DEG")?,
+        ),
+        center_lat_lon_deg: (
+            r.f64_in("CENTER_LATITUDE", "DEG")?,
+            r.f64_in("CENTER_LONGITUDE", "DEG")?,
+        ),
+        boresight_ra_dec_deg: (
+            r.f64_in("RIGHT_ASCENSION", "DEG")?,
+            r.f64_in("DECLINATION", "DEG")?,
+        ),
         corner_ra_dec_deg: std::array::from_fn(|i| (ra_seq[i], dec_seq[i])),
         sc_efrf_km: efrf,
     })
@@ -212,11 +242,17 @@ fn exposure_s(label: &Label) -> Result<f64> {
         Some(u) if u == "MS" => 1e-3,
         Some(u) if u == "S" || u == "SEC" || u == "SECONDS" => 1.0,
         other => {
-            return Err(Error::parse(label.path(), format!("`EXPOSURE_DURATION`: unit {other:?}, expected <MS> or <S>")))
+            return Err(Error::parse(
+                label.path(),
+                format!("`EXPOSURE_DURATION`: unit {other:?}, expected <MS> or <S>"),
+            ))
         }
     };
     if v.is_nan() || v <= 0.0 {
-        return Err(Error::parse(label.path(), format!("`EXPOSURE_DURATION`: {v} is not positive")));
+        return Err(Error::parse(
+            label.path(),
+            format!("`EXPOSURE_DURATION`: {v} is not positive"),
+        ));
     }
     Ok(v * scale)
 }
@@ -235,7 +271,8 @@ pub fn scene_from_label(label: &Label) -> Result<AmieScene> {
         bits: 10,
         full_well_e: 300_000.0,
     };
-    let utc = Utc::parse(&geo.start_time).map_err(|e| Error::parse(label.path(), format!("`START_TIME`: {e}")))?;
+    let utc = Utc::parse(&geo.start_time)
+        .map_err(|e| Error::parse(label.path(), format!("`START_TIME`: {e}")))?;
     let jd_tt = utc.jd_tt();
 
     let sc_to_moon_m = DVec3::from_array(geo.sc_target_position_km) * 1e3;
@@ -259,7 +296,13 @@ pub fn scene_from_label(label: &Label) -> Result<AmieScene> {
         body_attitude: quat_wxyz(body),
         sun_position: sun.to_array(),
     };
-    let mut scene = AmieScene { camera, state, jd_tt, attitude_fit_rms_px: 0.0, label: geo };
+    let mut scene = AmieScene {
+        camera,
+        state,
+        jd_tt,
+        attitude_fit_rms_px: 0.0,
+        label: geo,
+    };
     let res = scene.pointing_residuals_px();
     scene.attitude_fit_rms_px = (res.iter().map(|r| r * r).sum::<f64>() / res.len() as f64).sqrt();
     Ok(scene)
@@ -271,15 +314,25 @@ pub fn scene_from_label(label: &Label) -> Result<AmieScene> {
 /// assignments, e.g. a row-flipped grid, can be tried to test the
 /// orientation). Returns the rotation and the reprojection errors (px) of
 /// boresight and corners.
-pub fn fit_attitude(camera: &AmieCamera, geo: &LabelGeometry, corner_pixels: [[f64; 2]; 4]) -> (DQuat, [f64; 5]) {
+pub fn fit_attitude(
+    camera: &AmieCamera,
+    geo: &LabelGeometry,
+    corner_pixels: [[f64; 2]; 4],
+) -> (DQuat, [f64; 5]) {
     let pp = [camera.principal_point_px.0, camera.principal_point_px.1];
     let mut pixels = vec![pp];
-    let mut sky = vec![ephem::radec_to_unit(geo.boresight_ra_dec_deg.0, geo.boresight_ra_dec_deg.1)];
+    let mut sky = vec![ephem::radec_to_unit(
+        geo.boresight_ra_dec_deg.0,
+        geo.boresight_ra_dec_deg.1,
+    )];
     for (px, (ra, dec)) in corner_pixels.iter().zip(geo.corner_ra_dec_deg) {
         pixels.push(*px);
         sky.push(ephem::radec_to_unit(ra, dec));
     }
-    let rays: Vec<DVec3> = pixels.iter().map(|p| camera.pixel_to_ray(p[0], p[1])).collect();
+    let rays: Vec<DVec3> = pixels
+        .iter()
+        .map(|p| camera.pixel_to_ray(p[0], p[1]))
+        .collect();
     let q = wahba_quaternion(&rays, &sky);
     let mut res = [f64::INFINITY; 5];
     for (i, (px, d)) in pixels.iter().zip(&sky).enumerate() {
@@ -320,7 +373,11 @@ pub fn wahba_quaternion(a: &[DVec3], b: &[DVec3]) -> DQuat {
         [bm[2][0] + bm[0][2], bm[2][1] + bm[1][2], 2.0 * bm[2][2]],
     ];
     let tr = bm[0][0] + bm[1][1] + bm[2][2];
-    let z = [bm[1][2] - bm[2][1], bm[2][0] - bm[0][2], bm[0][1] - bm[1][0]];
+    let z = [
+        bm[1][2] - bm[2][1],
+        bm[2][0] - bm[0][2],
+        bm[0][1] - bm[1][0],
+    ];
     // K for q = [x, y, z, w] (vector first), for vectors b = R(q) a.
     let mut k = [[0.0f64; 4]; 4];
     for r in 0..3 {
@@ -332,11 +389,19 @@ pub fn wahba_quaternion(a: &[DVec3], b: &[DVec3]) -> DQuat {
     }
     k[3][3] = tr;
     let (vals, vecs) = jacobi_eigen4(k);
-    let best = (0..4).max_by(|&i, &j| vals[i].total_cmp(&vals[j])).expect("4 eigenvalues");
+    let best = (0..4)
+        .max_by(|&i, &j| vals[i].total_cmp(&vals[j]))
+        .expect("4 eigenvalues");
     // With this sign convention the eigenvector is the conjugate-sense
     // quaternion; verify on the data and pick the rotation that maps a -> b.
-    let q = DQuat::from_xyzw(vecs[0][best], vecs[1][best], vecs[2][best], vecs[3][best]).normalize();
-    let err = |q: DQuat| a.iter().zip(b).map(|(ai, bi)| (q * ai.normalize() - bi.normalize()).length_squared()).sum::<f64>();
+    let q =
+        DQuat::from_xyzw(vecs[0][best], vecs[1][best], vecs[2][best], vecs[3][best]).normalize();
+    let err = |q: DQuat| {
+        a.iter()
+            .zip(b)
+            .map(|(ai, bi)| (q * ai.normalize() - bi.normalize()).length_squared())
+            .sum::<f64>()
+    };
     if err(q) <= err(q.conjugate()) {
         q
     } else {
@@ -351,7 +416,10 @@ fn jacobi_eigen4(mut a: [[f64; 4]; 4]) -> ([f64; 4], [[f64; 4]; 4]) {
         row[i] = 1.0;
     }
     for _sweep in 0..100 {
-        let off: f64 = (0..4).flat_map(|p| (0..4).filter(move |&q| q != p).map(move |q| (p, q))).map(|(p, q)| a[p][q] * a[p][q]).sum();
+        let off: f64 = (0..4)
+            .flat_map(|p| (0..4).filter(move |&q| q != p).map(move |q| (p, q)))
+            .map(|(p, q)| a[p][q] * a[p][q])
+            .sum();
         if off < 1e-30 {
             break;
         }
@@ -441,12 +509,14 @@ impl AmieScene {
 
     /// Pixel coordinates of a world point (m), `None` behind the camera.
     pub fn project_point(&self, p: DVec3) -> Option<[f64; 2]> {
-        self.camera.project_camera(self.camera_to_world().inverse() * (p - self.camera_position()))
+        self.camera
+            .project_camera(self.camera_to_world().inverse() * (p - self.camera_position()))
     }
 
     /// Pixel coordinates of a J2000 direction (e.g. a star), `None` behind.
     pub fn project_direction(&self, d: DVec3) -> Option<[f64; 2]> {
-        self.camera.project_camera(self.camera_to_world().inverse() * d)
+        self.camera
+            .project_camera(self.camera_to_world().inverse() * d)
     }
 
     /// Apparent Moon disk: centre (px) and radius (px) of the limb circle
@@ -487,7 +557,13 @@ impl AmieScene {
     /// directions against the principal point and the corner pixels.
     pub fn pointing_residuals_px(&self) -> [f64; 5] {
         let l = &self.label;
-        let mut targets = vec![(l.boresight_ra_dec_deg, [self.camera.principal_point_px.0, self.camera.principal_point_px.1])];
+        let mut targets = vec![(
+            l.boresight_ra_dec_deg,
+            [
+                self.camera.principal_point_px.0,
+                self.camera.principal_point_px.1,
+            ],
+        )];
         for (rd, px) in l.corner_ra_dec_deg.iter().zip(self.camera.corner_pixels()) {
             targets.push((*rd, px));
         }
@@ -514,11 +590,15 @@ impl AmieScene {
         let hit = (disc >= 0.0).then(|| cam + dir * (-b - disc.sqrt()));
         let sub_solar = ephem::lat_lon_deg(body_inv * sun);
         let (la, lo) = (sub_solar.0.to_radians(), sub_solar.1.to_radians());
-        let (lb, lob) = (self.label.sub_solar_lat_lon_deg.0.to_radians(), self.label.sub_solar_lat_lon_deg.1.to_radians());
+        let (lb, lob) = (
+            self.label.sub_solar_lat_lon_deg.0.to_radians(),
+            self.label.sub_solar_lat_lon_deg.1.to_radians(),
+        );
         let cosd = la.sin() * lb.sin() + la.cos() * lb.cos() * (lo - lob).cos();
 
         let moon_vs_efrf = self.label.sc_efrf_km.map(|efrf| {
-            let utc = Utc::parse(&self.label.start_time).expect("validated when the scene was built");
+            let utc =
+                Utc::parse(&self.label.start_time).expect("validated when the scene was built");
             let g = ephem::gmst_deg(utc.jd_utc()).to_radians();
             let sc_geo = DMat3::from_rotation_z(g) * DVec3::from_array(efrf) * 1e3;
             let moon_label = sc_geo + DVec3::from_array(self.label.sc_target_position_km) * 1e3;
@@ -535,8 +615,12 @@ impl AmieScene {
             let umbra = EARTH_RADIUS_M - along * (SUN_RADIUS_M - EARTH_RADIUS_M) / sun_geo.length();
             (axis_dist / 1e3, umbra / 1e3)
         });
-        let (clat, clon) = (self.label.center_lat_lon_deg.0.to_radians(), self.label.center_lat_lon_deg.1.to_radians());
-        let center_body = DVec3::new(clat.cos() * clon.cos(), clat.cos() * clon.sin(), clat.sin()) * MOON_RADIUS_M;
+        let (clat, clon) = (
+            self.label.center_lat_lon_deg.0.to_radians(),
+            self.label.center_lat_lon_deg.1.to_radians(),
+        );
+        let center_body = DVec3::new(clat.cos() * clon.cos(), clat.cos() * clon.sin(), clat.sin())
+            * MOON_RADIUS_M;
         let pp = self.camera.principal_point_px;
         let center_offset = self
             .project_point(self.body_to_world() * center_body)

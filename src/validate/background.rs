@@ -99,7 +99,11 @@ fn median(v: &mut [f64]) -> Option<f64> {
     }
     v.sort_by(|a, b| a.total_cmp(b));
     let n = v.len();
-    Some(if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) })
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
 }
 
 fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {
@@ -131,20 +135,29 @@ impl BackgroundModel {
     pub fn fit(img: &Raster, disk: Disk, p: &BackgroundParams) -> Result<Self> {
         let (w, h) = (img.width, img.height);
         if p.halo_bins_px.len() < 2 || p.halo_bins_px.windows(2).any(|b| b[1] <= b[0]) {
-            return Err(Error::invalid("background.halo_bins_px", "need at least two increasing ring edges"));
+            return Err(Error::invalid(
+                "background.halo_bins_px",
+                "need at least two increasing ring edges",
+            ));
         }
         let mut sky = vec![];
         for r in 0..h {
             for c in 0..w {
                 let (x, y) = (c as f64 + 0.5, r as f64 + 0.5);
                 let v = img.get(c, r);
-                if v.is_finite() && v < p.saturation_dn && disk.limb_distance(x, y) > p.sky_margin_px {
+                if v.is_finite()
+                    && v < p.saturation_dn
+                    && disk.limb_distance(x, y) > p.sky_margin_px
+                {
                     sky.push((x, y, v as f64));
                 }
             }
         }
         if sky.len() < 100 {
-            return Err(Error::invalid("background", format!("only {} sky pixels outside the disk", sky.len())));
+            return Err(Error::invalid(
+                "background",
+                format!("only {} sky pixels outside the disk", sky.len()),
+            ));
         }
         let mut keep = vec![true; sky.len()];
         let mut poly = [0.0; 6];
@@ -162,9 +175,22 @@ impl BackgroundModel {
                     }
                 }
             }
-            poly = solve6(ata, atb).ok_or_else(|| Error::invalid("background", "singular sky fit (sky pixels too few or collinear)"))?;
-            let res: Vec<f64> = sky.iter().map(|&(x, y, v)| v - eval(&poly, x, y, w, h)).collect();
-            let mut kept: Vec<f64> = res.iter().zip(&keep).filter(|(_, &k)| k).map(|(r, _)| r.abs()).collect();
+            poly = solve6(ata, atb).ok_or_else(|| {
+                Error::invalid(
+                    "background",
+                    "singular sky fit (sky pixels too few or collinear)",
+                )
+            })?;
+            let res: Vec<f64> = sky
+                .iter()
+                .map(|&(x, y, v)| v - eval(&poly, x, y, w, h))
+                .collect();
+            let mut kept: Vec<f64> = res
+                .iter()
+                .zip(&keep)
+                .filter(|(_, &k)| k)
+                .map(|(r, _)| r.abs())
+                .collect();
             sigma = 1.4826 * median(&mut kept).unwrap_or(0.0);
             let lim = p.clip_sigma * sigma.max(1e-6);
             for (k, r) in res.iter().enumerate() {
@@ -190,7 +216,10 @@ impl BackgroundModel {
                 if d >= last {
                     far.push(v as f64);
                 } else if d >= edges[0] {
-                    let i = edges.windows(2).position(|e| d >= e[0] && d < e[1]).expect("inside the rings");
+                    let i = edges
+                        .windows(2)
+                        .position(|e| d >= e[0] && d < e[1])
+                        .expect("inside the rings");
                     rings[i].push(v as f64 - eval(&poly, x, y, w, h));
                 }
             }
@@ -202,8 +231,19 @@ impl BackgroundModel {
             prev = m;
             halo.push((0.5 * (edges[i] + edges[i + 1]), m));
         }
-        let dark = median(&mut far).or_else(|| median(&mut sky.iter().map(|s| s.2).collect::<Vec<_>>())).unwrap_or(0.0);
-        Ok(Self { dark_level_dn: dark, poly, sky_sigma_dn: sigma, halo, sky_pixels, width: w, height: h, disk })
+        let dark = median(&mut far)
+            .or_else(|| median(&mut sky.iter().map(|s| s.2).collect::<Vec<_>>()))
+            .unwrap_or(0.0);
+        Ok(Self {
+            dark_level_dn: dark,
+            poly,
+            sky_sigma_dn: sigma,
+            halo,
+            sky_pixels,
+            width: w,
+            height: h,
+            disk,
+        })
     }
 
     /// Halo value at signed limb distance `d` (px).
@@ -223,18 +263,25 @@ impl BackgroundModel {
         }
         // Beyond the last ring centre, fall linearly to 0 over one ring width.
         let (dl, vl) = *h.last().expect("non-empty");
-        let width = if h.len() > 1 { dl - h[h.len() - 2].0 } else { 1.0 };
+        let width = if h.len() > 1 {
+            dl - h[h.len() - 2].0
+        } else {
+            1.0
+        };
         (vl * (1.0 - (d - dl) / width)).max(0.0)
     }
 
     /// Background (DN) at pixel coordinates (x, y).
     pub fn at(&self, x: f64, y: f64) -> f64 {
-        eval(&self.poly, x, y, self.width, self.height) + self.halo_at(self.disk.limb_distance(x, y))
+        eval(&self.poly, x, y, self.width, self.height)
+            + self.halo_at(self.disk.limb_distance(x, y))
     }
 
     /// The model as an image.
     pub fn render(&self) -> Raster {
-        Raster::from_fn(self.width, self.height, |c, r| self.at(c as f64 + 0.5, r as f64 + 0.5) as f32)
+        Raster::from_fn(self.width, self.height, |c, r| {
+            self.at(c as f64 + 0.5, r as f64 + 0.5) as f32
+        })
     }
 }
 
@@ -244,7 +291,11 @@ fn eval(p: &[f64; 6], x: f64, y: f64, w: usize, h: usize) -> f64 {
 
 /// Fits the background of `img` and returns `max(img − background, 0)`
 /// with the model.
-pub fn remove_background(img: &Raster, disk: Disk, p: &BackgroundParams) -> Result<(Raster, BackgroundModel)> {
+pub fn remove_background(
+    img: &Raster,
+    disk: Disk,
+    p: &BackgroundParams,
+) -> Result<(Raster, BackgroundModel)> {
     let model = BackgroundModel::fit(img, disk, p)?;
     let out = Raster::from_fn(img.width, img.height, |c, r| {
         let v = img.get(c, r) as f64 - model.at(c as f64 + 0.5, r as f64 + 0.5);

@@ -52,7 +52,9 @@ impl Utc {
     pub fn parse(text: &str) -> Result<Utc> {
         let bad = |m: &str| Error::invalid("time", format!("`{text}`: {m}"));
         let t = text.trim().trim_end_matches('Z');
-        let (date, time) = t.split_once('T').ok_or_else(|| bad("expected `T` between date and time"))?;
+        let (date, time) = t
+            .split_once('T')
+            .ok_or_else(|| bad("expected `T` between date and time"))?;
         let d: Vec<&str> = date.split('-').collect();
         let (year, month, day) = match d.as_slice() {
             [y, m, dd] => (
@@ -64,7 +66,20 @@ impl Utc {
                 let y: i32 = y.parse().map_err(|_| bad("bad year"))?;
                 let doy: u32 = doy.parse().map_err(|_| bad("bad day of year"))?;
                 let leap = (y % 4 == 0 && y % 100 != 0) || y % 400 == 0;
-                let lens = [31, if leap { 29 } else { 28 }, 31, 30, 31, 30, 31, 31, 30, 31, 30, 31];
+                let lens = [
+                    31,
+                    if leap { 29 } else { 28 },
+                    31,
+                    30,
+                    31,
+                    30,
+                    31,
+                    31,
+                    30,
+                    31,
+                    30,
+                    31,
+                ];
                 let mut rem = doy;
                 let mut m = 1;
                 for l in lens {
@@ -88,10 +103,22 @@ impl Utc {
         let hour: u32 = tp[0].parse().map_err(|_| bad("bad hour"))?;
         let minute: u32 = tp[1].parse().map_err(|_| bad("bad minute"))?;
         let second: f64 = tp[2].parse().map_err(|_| bad("bad second"))?;
-        if !(1..=12).contains(&month) || !(1..=31).contains(&day) || hour > 23 || minute > 59 || !(0.0..61.0).contains(&second) {
+        if !(1..=12).contains(&month)
+            || !(1..=31).contains(&day)
+            || hour > 23
+            || minute > 59
+            || !(0.0..61.0).contains(&second)
+        {
             return Err(bad("field out of range"));
         }
-        Ok(Utc { year, month, day, hour, minute, second })
+        Ok(Utc {
+            year,
+            month,
+            day,
+            hour,
+            minute,
+            second,
+        })
     }
 
     /// Julian date on the UTC time scale (Gregorian calendar).
@@ -100,19 +127,42 @@ impl Utc {
         let y = self.year as i64 + 4800 - a;
         let m = self.month as i64 + 12 * a - 3;
         let jdn = self.day as i64 + (153 * m + 2) / 5 + 365 * y + y / 4 - y / 100 + y / 400 - 32045;
-        jdn as f64 - 0.5 + (self.hour as f64 + self.minute as f64 / 60.0 + self.second / 3600.0) / 24.0
+        jdn as f64 - 0.5
+            + (self.hour as f64 + self.minute as f64 / 60.0 + self.second / 3600.0) / 24.0
     }
 
     /// TAI − UTC in seconds (IERS Bulletin C table, 1972 onwards; 37 s since 2017).
     pub fn tai_minus_utc(&self) -> f64 {
         // (year, month) from which the value applies.
         const STEPS: [(i32, u32, f64); 28] = [
-            (1972, 1, 10.0), (1972, 7, 11.0), (1973, 1, 12.0), (1974, 1, 13.0), (1975, 1, 14.0),
-            (1976, 1, 15.0), (1977, 1, 16.0), (1978, 1, 17.0), (1979, 1, 18.0), (1980, 1, 19.0),
-            (1981, 7, 20.0), (1982, 7, 21.0), (1983, 7, 22.0), (1985, 7, 23.0), (1988, 1, 24.0),
-            (1990, 1, 25.0), (1991, 1, 26.0), (1992, 7, 27.0), (1993, 7, 28.0), (1994, 7, 29.0),
-            (1996, 1, 30.0), (1997, 7, 31.0), (1999, 1, 32.0), (2006, 1, 33.0), (2009, 1, 34.0),
-            (2012, 7, 35.0), (2015, 7, 36.0), (2017, 1, 37.0),
+            (1972, 1, 10.0),
+            (1972, 7, 11.0),
+            (1973, 1, 12.0),
+            (1974, 1, 13.0),
+            (1975, 1, 14.0),
+            (1976, 1, 15.0),
+            (1977, 1, 16.0),
+            (1978, 1, 17.0),
+            (1979, 1, 18.0),
+            (1980, 1, 19.0),
+            (1981, 7, 20.0),
+            (1982, 7, 21.0),
+            (1983, 7, 22.0),
+            (1985, 7, 23.0),
+            (1988, 1, 24.0),
+            (1990, 1, 25.0),
+            (1991, 1, 26.0),
+            (1992, 7, 27.0),
+            (1993, 7, 28.0),
+            (1994, 7, 29.0),
+            (1996, 1, 30.0),
+            (1997, 7, 31.0),
+            (1999, 1, 32.0),
+            (2006, 1, 33.0),
+            (2009, 1, 34.0),
+            (2012, 7, 35.0),
+            (2015, 7, 36.0),
+            (2017, 1, 37.0),
         ];
         let mut v = 10.0;
         for (y, m, s) in STEPS {
@@ -131,8 +181,16 @@ impl Utc {
 
 fn ecliptic_to_j2000(lon_rad: f64, lat_rad: f64, r: f64) -> DVec3 {
     let eps = OBLIQUITY_J2000_DEG.to_radians();
-    let (x, y, z) = (r * lat_rad.cos() * lon_rad.cos(), r * lat_rad.cos() * lon_rad.sin(), r * lat_rad.sin());
-    DVec3::new(x, y * eps.cos() - z * eps.sin(), y * eps.sin() + z * eps.cos())
+    let (x, y, z) = (
+        r * lat_rad.cos() * lon_rad.cos(),
+        r * lat_rad.cos() * lon_rad.sin(),
+        r * lat_rad.sin(),
+    );
+    DVec3::new(
+        x,
+        y * eps.cos() - z * eps.sin(),
+        y * eps.sin() + z * eps.cos(),
+    )
 }
 
 /// Geocentric position of the Sun (m, J2000 equator and equinox) at `jd_tt`.
@@ -158,18 +216,26 @@ pub fn moon_geocentric_j2000(jd_tt: f64) -> DVec3 {
     let t = (jd_tt - JD_J2000) / 36_525.0;
     let s = |a: f64| a.to_radians().sin();
     let c = |a: f64| a.to_radians().cos();
-    let lon = 218.32 + 481_267.881 * t + 6.29 * s(135.0 + 477_198.87 * t) - 1.27 * s(259.3 - 413_335.36 * t)
+    let lon = 218.32 + 481_267.881 * t + 6.29 * s(135.0 + 477_198.87 * t)
+        - 1.27 * s(259.3 - 413_335.36 * t)
         + 0.66 * s(235.7 + 890_534.22 * t)
         + 0.21 * s(269.9 + 954_397.74 * t)
         - 0.19 * s(357.5 + 35_999.05 * t)
         - 0.11 * s(186.5 + 966_404.03 * t);
-    let lat = 5.13 * s(93.3 + 483_202.02 * t) + 0.28 * s(228.2 + 960_400.89 * t) - 0.28 * s(318.3 + 6_003.15 * t)
+    let lat = 5.13 * s(93.3 + 483_202.02 * t) + 0.28 * s(228.2 + 960_400.89 * t)
+        - 0.28 * s(318.3 + 6_003.15 * t)
         - 0.17 * s(217.6 - 407_332.21 * t);
-    let parallax = 0.9508 + 0.0518 * c(135.0 + 477_198.87 * t) + 0.0095 * c(259.3 - 413_335.36 * t)
+    let parallax = 0.9508
+        + 0.0518 * c(135.0 + 477_198.87 * t)
+        + 0.0095 * c(259.3 - 413_335.36 * t)
         + 0.0078 * c(235.7 + 890_534.22 * t)
         + 0.0028 * c(269.9 + 954_397.74 * t);
     let r = EARTH_RADIUS_AA_M / parallax.to_radians().sin();
-    ecliptic_to_j2000((lon - 0.013_97 * (100.0 * t)).to_radians(), lat.to_radians(), r)
+    ecliptic_to_j2000(
+        (lon - 0.013_97 * (100.0 * t)).to_radians(),
+        lat.to_radians(),
+        r,
+    )
 }
 
 /// Position of the Sun relative to the Moon's centre (m, J2000) at `jd_tt`.
@@ -197,10 +263,15 @@ pub fn moon_rotation_elements_deg(jd_tdb: f64) -> (f64, f64, f64) {
         (239.961, 6_003.150_382_5),
         (25.053, 473_327.796_42),
     ];
-    const RA: [f64; 13] = [-3.8787, -0.1204, 0.0700, -0.0172, 0.0, 0.0072, 0.0, 0.0, 0.0, -0.0052, 0.0, 0.0, 0.0043];
-    const DEC: [f64; 13] = [1.5419, 0.0239, -0.0278, 0.0068, 0.0, -0.0029, 0.0009, 0.0, 0.0, 0.0008, 0.0, 0.0, -0.0009];
+    const RA: [f64; 13] = [
+        -3.8787, -0.1204, 0.0700, -0.0172, 0.0, 0.0072, 0.0, 0.0, 0.0, -0.0052, 0.0, 0.0, 0.0043,
+    ];
+    const DEC: [f64; 13] = [
+        1.5419, 0.0239, -0.0278, 0.0068, 0.0, -0.0029, 0.0009, 0.0, 0.0, 0.0008, 0.0, 0.0, -0.0009,
+    ];
     const PM: [f64; 13] = [
-        3.5610, 0.1208, -0.0642, 0.0158, 0.0252, -0.0066, -0.0047, -0.0046, 0.0028, 0.0052, 0.0040, 0.0019, -0.0044,
+        3.5610, 0.1208, -0.0642, 0.0158, 0.0252, -0.0066, -0.0047, -0.0046, 0.0028, 0.0052, 0.0040,
+        0.0019, -0.0044,
     ];
     let d = jd_tdb - JD_J2000;
     let t = d / 36_525.0;
@@ -232,14 +303,18 @@ pub fn moon_body_to_j2000(jd_tdb: f64) -> DMat3 {
 pub fn gmst_deg(jd_ut1: f64) -> f64 {
     let d = jd_ut1 - JD_J2000;
     let t = d / 36_525.0;
-    (280.460_618_37 + 360.985_647_366_29 * d + 0.000_387_933 * t * t - t * t * t / 38_710_000.0).rem_euclid(360.0)
+    (280.460_618_37 + 360.985_647_366_29 * d + 0.000_387_933 * t * t - t * t * t / 38_710_000.0)
+        .rem_euclid(360.0)
 }
 
 /// Planetocentric latitude and east longitude (degrees, longitude in
 /// [0, 360)) of the direction `v` in a body-fixed frame.
 pub fn lat_lon_deg(v: DVec3) -> (f64, f64) {
     let u = v.normalize();
-    (u.z.clamp(-1.0, 1.0).asin().to_degrees(), u.y.atan2(u.x).to_degrees().rem_euclid(360.0))
+    (
+        u.z.clamp(-1.0, 1.0).asin().to_degrees(),
+        u.y.atan2(u.x).to_degrees().rem_euclid(360.0),
+    )
 }
 
 /// Unit vector for right ascension / declination in degrees.
@@ -251,5 +326,8 @@ pub fn radec_to_unit(ra_deg: f64, dec_deg: f64) -> DVec3 {
 /// Right ascension in [0, 360) and declination, degrees, of `v`.
 pub fn unit_to_radec(v: DVec3) -> (f64, f64) {
     let u = v.normalize();
-    (u.y.atan2(u.x).to_degrees().rem_euclid(360.0), u.z.clamp(-1.0, 1.0).asin().to_degrees())
+    (
+        u.y.atan2(u.x).to_degrees().rem_euclid(360.0),
+        u.z.clamp(-1.0, 1.0).asin().to_degrees(),
+    )
 }

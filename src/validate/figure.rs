@@ -50,11 +50,19 @@ pub fn heat(t: f32) -> Rgb<u8> {
 }
 
 /// Builds the four-panel figure.
-pub fn comparison_figure(real: &Raster, render: &Raster, ssim: &SsimResult, opts: &FigureOptions) -> Result<RgbImage> {
+pub fn comparison_figure(
+    real: &Raster,
+    render: &Raster,
+    ssim: &SsimResult,
+    opts: &FigureOptions,
+) -> Result<RgbImage> {
     real.check_same_size(render, "figure")?;
     let (w, h) = (real.width, real.height);
     if ssim.map.width + 2 * ssim.offset != w || ssim.map.height + 2 * ssim.offset != h {
-        return Err(Error::invalid("figure.ssim", "SSIM map does not belong to images of this size"));
+        return Err(Error::invalid(
+            "figure.ssim",
+            "SSIM map does not belong to images of this size",
+        ));
     }
     let gmax = opts.grey_max.unwrap_or_else(|| {
         let m = |r: &Raster| r.min_max().map(|(_, hi)| hi).unwrap_or(1.0);
@@ -62,8 +70,15 @@ pub fn comparison_figure(real: &Raster, render: &Raster, ssim: &SsimResult, opts
     });
     let gmax = if gmax > 0.0 { gmax } else { 1.0 };
     let gamma = opts.gamma.unwrap_or(1.0);
-    let diff: Vec<f32> = real.data.iter().zip(&render.data).map(|(a, b)| a - b).collect();
-    let drange = opts.diff_range.unwrap_or_else(|| diff.iter().fold(0.0f32, |m, d| m.max(d.abs())));
+    let diff: Vec<f32> = real
+        .data
+        .iter()
+        .zip(&render.data)
+        .map(|(a, b)| a - b)
+        .collect();
+    let drange = opts
+        .diff_range
+        .unwrap_or_else(|| diff.iter().fold(0.0f32, |m, d| m.max(d.abs())));
     let drange = if drange > 0.0 { drange } else { 1.0 };
 
     let fw = 4 * w + 3;
@@ -76,7 +91,11 @@ pub fn comparison_figure(real: &Raster, render: &Raster, ssim: &SsimResult, opts
             };
             out.put_pixel(c as u32, r as u32, grey(real.get(c, r)));
             out.put_pixel((w + 1 + c) as u32, r as u32, grey(render.get(c, r)));
-            out.put_pixel((2 * (w + 1) + c) as u32, r as u32, diverging(diff[r * w + c] / drange));
+            out.put_pixel(
+                (2 * (w + 1) + c) as u32,
+                r as u32,
+                diverging(diff[r * w + c] / drange),
+            );
             let o = ssim.offset;
             let s = if r >= o && c >= o && r < o + ssim.map.height && c < o + ssim.map.width {
                 heat(ssim.map.get(c - o, r - o))
@@ -90,7 +109,13 @@ pub fn comparison_figure(real: &Raster, render: &Raster, ssim: &SsimResult, opts
 }
 
 /// Builds the figure and writes it as PNG.
-pub fn write_comparison_png(path: impl AsRef<Path>, real: &Raster, render: &Raster, ssim: &SsimResult, opts: &FigureOptions) -> Result<()> {
+pub fn write_comparison_png(
+    path: impl AsRef<Path>,
+    real: &Raster,
+    render: &Raster,
+    ssim: &SsimResult,
+    opts: &FigureOptions,
+) -> Result<()> {
     let path = path.as_ref();
     let img = comparison_figure(real, render, ssim, opts)?;
     img.save_with_format(path, image::ImageFormat::Png)

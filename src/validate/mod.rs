@@ -20,7 +20,7 @@ pub mod background;
 pub mod ephem;
 pub mod figure;
 pub mod pds3;
-pub mod ssim;
 pub mod raster;
+pub mod ssim;
 
 pub use raster::Raster;

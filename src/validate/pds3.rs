@@ -24,7 +24,10 @@ pub enum Value {
     Symbol(String),
     /// A sequence `(a, b, ...)` or a set `{a, b, ...}`, with an optional unit
     /// written after the closing bracket.
-    Sequence { items: Vec<Value>, unit: Option<String> },
+    Sequence {
+        items: Vec<Value>,
+        unit: Option<String>,
+    },
 }
 
 impl Value {
@@ -42,7 +45,10 @@ impl Value {
     pub fn describe(&self) -> String {
         match self {
             Value::Scalar { text, .. } => format!("`{text}`"),
-            Value::Quoted(s) => format!("string \"{}\"", s.split_whitespace().collect::<Vec<_>>().join(" ")),
+            Value::Quoted(s) => format!(
+                "string \"{}\"",
+                s.split_whitespace().collect::<Vec<_>>().join(" ")
+            ),
             Value::Symbol(s) => format!("symbol '{s}'"),
             Value::Sequence { items, .. } => format!("a sequence of {} items", items.len()),
         }
@@ -73,13 +79,20 @@ pub struct Label {
 
 impl Group {
     fn err(&self, key: &str, msg: impl std::fmt::Display) -> Error {
-        let place = if self.name == "ROOT" { String::new() } else { format!("OBJECT {}: ", self.name) };
+        let place = if self.name == "ROOT" {
+            String::new()
+        } else {
+            format!("OBJECT {}: ", self.name)
+        };
         Error::parse(&self.path, format!("{place}`{key}`: {msg}"))
     }
 
     /// The value of `key` (first occurrence), or `None`.
     pub fn find(&self, key: &str) -> Option<&Value> {
-        self.entries.iter().find(|(k, _)| k.eq_ignore_ascii_case(key)).map(|(_, v)| v)
+        self.entries
+            .iter()
+            .find(|(k, _)| k.eq_ignore_ascii_case(key))
+            .map(|(_, v)| v)
     }
 
     /// The value of `key`; error naming the file and key when missing.
@@ -97,17 +110,23 @@ impl Group {
 
     /// String value of `key` (quoted strings have whitespace runs collapsed).
     pub fn string(&self, key: &str) -> Result<String> {
-        self.get(key)?.as_text().ok_or_else(|| self.err(key, "expected a string, found a sequence"))
+        self.get(key)?
+            .as_text()
+            .ok_or_else(|| self.err(key, "expected a string, found a sequence"))
     }
 
     /// Number and optional unit of `key`.
     pub fn f64_with_unit(&self, key: &str) -> Result<(f64, Option<String>)> {
         match self.get(key)? {
             Value::Scalar { text, unit } => {
-                let v = parse_number(text).ok_or_else(|| self.err(key, format!("`{text}` is not a number")))?;
+                let v = parse_number(text)
+                    .ok_or_else(|| self.err(key, format!("`{text}` is not a number")))?;
                 Ok((v, unit.clone()))
             }
-            other => Err(self.err(key, format!("expected a number, found {}", other.describe()))),
+            other => Err(self.err(
+                key,
+                format!("expected a number, found {}", other.describe()),
+            )),
         }
     }
 
@@ -130,10 +149,13 @@ impl Group {
     /// Integer value of `key`.
     pub fn i64(&self, key: &str) -> Result<i64> {
         match self.get(key)? {
-            Value::Scalar { text, .. } => {
-                text.parse::<i64>().map_err(|_| self.err(key, format!("`{text}` is not an integer")))
-            }
-            other => Err(self.err(key, format!("expected an integer, found {}", other.describe()))),
+            Value::Scalar { text, .. } => text
+                .parse::<i64>()
+                .map_err(|_| self.err(key, format!("`{text}` is not an integer"))),
+            other => Err(self.err(
+                key,
+                format!("expected an integer, found {}", other.describe()),
+            )),
         }
     }
 
@@ -145,16 +167,25 @@ impl Group {
                 let mut out = Vec::with_capacity(items.len());
                 for (i, it) in items.iter().enumerate() {
                     match it {
-                        Value::Scalar { text, .. } => out.push(
-                            parse_number(text)
-                                .ok_or_else(|| self.err(key, format!("item {i}: `{text}` is not a number")))?,
-                        ),
-                        other => return Err(self.err(key, format!("item {i}: expected a number, found {}", other.describe()))),
+                        Value::Scalar { text, .. } => {
+                            out.push(parse_number(text).ok_or_else(|| {
+                                self.err(key, format!("item {i}: `{text}` is not a number"))
+                            })?)
+                        }
+                        other => {
+                            return Err(self.err(
+                                key,
+                                format!("item {i}: expected a number, found {}", other.describe()),
+                            ))
+                        }
                     }
                 }
                 Ok((out, unit.clone()))
             }
-            other => Err(self.err(key, format!("expected a sequence, found {}", other.describe()))),
+            other => Err(self.err(
+                key,
+                format!("expected a sequence, found {}", other.describe()),
+            )),
         }
     }
 
@@ -178,7 +209,12 @@ impl Label {
     /// Parses the label at the start of `bytes` (the file may continue with
     /// binary data after `END`); `path` is used in error messages.
     pub fn parse(bytes: &[u8], path: impl AsRef<Path>) -> Result<Label> {
-        Parser { b: bytes, i: 0, path: path.as_ref().to_path_buf() }.label()
+        Parser {
+            b: bytes,
+            i: 0,
+            path: path.as_ref().to_path_buf(),
+        }
+        .label()
     }
 
     /// Top-level accessor shortcuts (see [`Group`]).
@@ -199,7 +235,9 @@ impl Label {
         let root = &self.root;
         match root.get(&key)? {
             Value::Scalar { text, unit } => {
-                let n: u64 = text.parse().map_err(|_| root.err(&key, format!("`{text}` is not a positive integer")))?;
+                let n: u64 = text
+                    .parse()
+                    .map_err(|_| root.err(&key, format!("`{text}` is not a positive integer")))?;
                 if n == 0 {
                     return Err(root.err(&key, "pointers are 1-based; 0 is invalid"));
                 }
@@ -215,7 +253,10 @@ impl Label {
                     Some(u) => Err(root.err(&key, format!("unsupported pointer unit <{u}>"))),
                 }
             }
-            other => Err(root.err(&key, format!("detached or malformed pointer {other:?} is not supported"))),
+            other => Err(root.err(
+                &key,
+                format!("detached or malformed pointer {other:?} is not supported"),
+            )),
         }
     }
 }
@@ -238,7 +279,10 @@ struct Parser<'a> {
 
 impl Parser<'_> {
     fn line(&self) -> usize {
-        1 + self.b[..self.i.min(self.b.len())].iter().filter(|&&c| c == b'\n').count()
+        1 + self.b[..self.i.min(self.b.len())]
+            .iter()
+            .filter(|&&c| c == b'\n')
+            .count()
     }
 
     fn fail(&self, msg: impl std::fmt::Display) -> Error {
@@ -304,10 +348,17 @@ impl Parser<'_> {
             return Ok(None);
         }
         let start = self.i + 1;
-        match self.b[start..].iter().position(|&c| c == b'>' || c == b'\n') {
+        match self.b[start..]
+            .iter()
+            .position(|&c| c == b'>' || c == b'\n')
+        {
             Some(p) if self.b[start + p] == b'>' => {
                 self.i = start + p + 1;
-                Ok(Some(String::from_utf8_lossy(&self.b[start..start + p]).trim().to_string()))
+                Ok(Some(
+                    String::from_utf8_lossy(&self.b[start..start + p])
+                        .trim()
+                        .to_string(),
+                ))
             }
             _ => Err(self.fail("unterminated unit `<`")),
         }
@@ -322,8 +373,13 @@ impl Parser<'_> {
                 match self.b[start..].iter().position(|&c| c == q) {
                     Some(p) => {
                         self.i = start + p + 1;
-                        let s = String::from_utf8_lossy(&self.b[start..start + p]).replace('\r', "");
-                        Ok(if q == b'"' { Value::Quoted(s) } else { Value::Symbol(s) })
+                        let s =
+                            String::from_utf8_lossy(&self.b[start..start + p]).replace('\r', "");
+                        Ok(if q == b'"' {
+                            Value::Quoted(s)
+                        } else {
+                            Value::Symbol(s)
+                        })
                     }
                     None => Err(self.fail("unterminated quoted string (truncated label?)")),
                 }
@@ -348,7 +404,12 @@ impl Parser<'_> {
                         Some(b',') => self.i += 1,
                         Some(c) if c == close => {}
                         None => return Err(self.fail("unterminated sequence (truncated label?)")),
-                        Some(c) => return Err(self.fail(format!("expected `,` or `{}` in sequence, found `{}`", close as char, c as char))),
+                        Some(c) => {
+                            return Err(self.fail(format!(
+                                "expected `,` or `{}` in sequence, found `{}`",
+                                close as char, c as char
+                            )))
+                        }
                     }
                 }
                 let unit = self.unit()?;
@@ -357,7 +418,9 @@ impl Parser<'_> {
             Some(_) => {
                 let start = self.i;
                 while let Some(c) = self.peek() {
-                    if c.is_ascii_whitespace() || matches!(c, b',' | b')' | b'}' | b'<' | b'(' | b'{' | b'=') {
+                    if c.is_ascii_whitespace()
+                        || matches!(c, b',' | b')' | b'}' | b'<' | b'(' | b'{' | b'=')
+                    {
                         break;
                     }
                     if c == b'/' && self.b.get(self.i + 1) == Some(&b'*') {
@@ -369,7 +432,10 @@ impl Parser<'_> {
                     self.i += 1;
                 }
                 if self.i == start {
-                    return Err(self.fail(format!("expected a value, found `{}`", self.b[start] as char)));
+                    return Err(self.fail(format!(
+                        "expected a value, found `{}`",
+                        self.b[start] as char
+                    )));
                 }
                 let text = String::from_utf8_lossy(&self.b[start..self.i]).into_owned();
                 let unit = self.unit()?;
@@ -382,9 +448,17 @@ impl Parser<'_> {
         // A PDS3 label starts with PDS_VERSION_ID = PDS3 (optionally after
         // comments / an SFDU header, which these products do not have).
         self.skip_ws()?;
-        let first = self.identifier().map_err(|_| Error::parse(&self.path, "not a PDS3 file: it does not start with `PDS_VERSION_ID`"))?;
+        let first = self.identifier().map_err(|_| {
+            Error::parse(
+                &self.path,
+                "not a PDS3 file: it does not start with `PDS_VERSION_ID`",
+            )
+        })?;
         if !first.eq_ignore_ascii_case("PDS_VERSION_ID") {
-            return Err(Error::parse(&self.path, format!("not a PDS3 file: first keyword is `{first}`, expected `PDS_VERSION_ID`")));
+            return Err(Error::parse(
+                &self.path,
+                format!("not a PDS3 file: first keyword is `{first}`, expected `PDS_VERSION_ID`"),
+            ));
         }
         self.skip_ws()?;
         if self.peek() != Some(b'=') {
@@ -393,9 +467,17 @@ impl Parser<'_> {
         self.i += 1;
         let version = self.value()?;
         if version.as_text().as_deref() != Some("PDS3") {
-            return Err(Error::parse(&self.path, format!("not a PDS3 file: PDS_VERSION_ID = {version:?}")));
+            return Err(Error::parse(
+                &self.path,
+                format!("not a PDS3 file: PDS_VERSION_ID = {version:?}"),
+            ));
         }
-        let new_group = |name: &str, path: &PathBuf| Group { path: path.clone(), name: name.to_string(), entries: vec![], children: vec![] };
+        let new_group = |name: &str, path: &PathBuf| Group {
+            path: path.clone(),
+            name: name.to_string(),
+            entries: vec![],
+            children: vec![],
+        };
         let mut stack = vec![new_group("ROOT", &self.path)];
         stack[0].entries.push(("PDS_VERSION_ID".into(), version));
         loop {
@@ -410,7 +492,9 @@ impl Parser<'_> {
                     self.i = save;
                     if stack.len() > 1 {
                         let open = stack.last().map(|g| g.name.clone()).unwrap_or_default();
-                        return Err(self.fail(format!("`END` inside OBJECT `{open}` (missing END_OBJECT)")));
+                        return Err(
+                            self.fail(format!("`END` inside OBJECT `{open}` (missing END_OBJECT)"))
+                        );
                     }
                     // Consume the rest of the END line.
                     while let Some(c) = self.peek() {
@@ -420,7 +504,10 @@ impl Parser<'_> {
                         }
                     }
                     let root = stack.pop().expect("root group");
-                    return Ok(Label { root, label_len: self.i });
+                    return Ok(Label {
+                        root,
+                        label_len: self.i,
+                    });
                 }
                 self.i = save;
             }
@@ -437,13 +524,23 @@ impl Parser<'_> {
             }
             match self.peek() {
                 Some(b'=') => self.i += 1,
-                None => return Err(self.fail(format!("unexpected end of file after `{key}` (truncated label?)"))),
-                Some(c) => return Err(self.fail(format!("expected `=` after `{key}`, found `{}`", c as char))),
+                None => {
+                    return Err(self.fail(format!(
+                        "unexpected end of file after `{key}` (truncated label?)"
+                    )))
+                }
+                Some(c) => {
+                    return Err(
+                        self.fail(format!("expected `=` after `{key}`, found `{}`", c as char))
+                    )
+                }
             }
             let value = self.value()?;
             match upper.as_str() {
                 "OBJECT" | "GROUP" => {
-                    let name = value.as_text().ok_or_else(|| self.fail(format!("{key} name must be a word")))?;
+                    let name = value
+                        .as_text()
+                        .ok_or_else(|| self.fail(format!("{key} name must be a word")))?;
                     stack.push(new_group(&name, &self.path));
                 }
                 "END_OBJECT" | "END_GROUP" => {
@@ -453,7 +550,9 @@ impl Parser<'_> {
                     let g = stack.pop().expect("non-root group");
                     if let Some(name) = value.as_text() {
                         if !name.eq_ignore_ascii_case(&g.name) {
-                            return Err(self.fail(format!("`{key} = {name}` closes OBJECT `{}`", g.name)));
+                            return Err(
+                                self.fail(format!("`{key} = {name}` closes OBJECT `{}`", g.name))
+                            );
                         }
                     }
                     stack.last_mut().expect("parent").children.push(g);
@@ -491,7 +590,10 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
     if record_type.eq_ignore_ascii_case("FIXED_LENGTH") {
         let rb = root.i64("RECORD_BYTES")?;
         let nrec = root.i64("FILE_RECORDS")?;
-        let expected = rb.checked_mul(nrec).filter(|&v| v > 0).ok_or_else(|| root.err("FILE_RECORDS", "invalid record count"))?;
+        let expected = rb
+            .checked_mul(nrec)
+            .filter(|&v| v > 0)
+            .ok_or_else(|| root.err("FILE_RECORDS", "invalid record count"))?;
         if expected as u64 != bytes.len() as u64 {
             return Err(Error::parse(path, format!(
                 "FILE_RECORDS ({nrec}) x RECORD_BYTES ({rb}) = {expected} bytes, but the file has {} bytes (truncated or padded file)",
@@ -500,7 +602,13 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
         }
         if let Ok(lr) = root.i64("LABEL_RECORDS") {
             if (lr * rb) as usize > bytes.len() || (lr * rb) < label.label_len as i64 {
-                return Err(root.err("LABEL_RECORDS", format!("{lr} records of {rb} bytes do not hold the {}-byte label", label.label_len)));
+                return Err(root.err(
+                    "LABEL_RECORDS",
+                    format!(
+                        "{lr} records of {rb} bytes do not hold the {}-byte label",
+                        label.label_len
+                    ),
+                ));
             }
         }
     }
@@ -515,7 +623,10 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
     let stype = img.string("SAMPLE_TYPE")?.to_ascii_uppercase();
     let little = match stype.as_str() {
         "LSB_UNSIGNED_INTEGER" | "PC_UNSIGNED_INTEGER" | "VAX_UNSIGNED_INTEGER" => true,
-        "MSB_UNSIGNED_INTEGER" | "UNSIGNED_INTEGER" | "SUN_UNSIGNED_INTEGER" | "MAC_UNSIGNED_INTEGER" => false,
+        "MSB_UNSIGNED_INTEGER"
+        | "UNSIGNED_INTEGER"
+        | "SUN_UNSIGNED_INTEGER"
+        | "MAC_UNSIGNED_INTEGER" => false,
         other => return Err(img.err("SAMPLE_TYPE", format!("unsupported sample type `{other}`"))),
     };
     let bps = match bits {
@@ -523,10 +634,26 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
         16 => 2usize,
         b => return Err(img.err("SAMPLE_BITS", format!("unsupported {b} bits per sample"))),
     };
-    let prefix = img.find("LINE_PREFIX_BYTES").map(|_| img.i64("LINE_PREFIX_BYTES")).transpose()?.unwrap_or(0) as usize;
-    let suffix = img.find("LINE_SUFFIX_BYTES").map(|_| img.i64("LINE_SUFFIX_BYTES")).transpose()?.unwrap_or(0) as usize;
-    let scale = img.find("SCALING_FACTOR").map(|_| img.f64("SCALING_FACTOR")).transpose()?.unwrap_or(1.0);
-    let offset = img.find("OFFSET").map(|_| img.f64("OFFSET")).transpose()?.unwrap_or(0.0);
+    let prefix = img
+        .find("LINE_PREFIX_BYTES")
+        .map(|_| img.i64("LINE_PREFIX_BYTES"))
+        .transpose()?
+        .unwrap_or(0) as usize;
+    let suffix = img
+        .find("LINE_SUFFIX_BYTES")
+        .map(|_| img.i64("LINE_SUFFIX_BYTES"))
+        .transpose()?
+        .unwrap_or(0) as usize;
+    let scale = img
+        .find("SCALING_FACTOR")
+        .map(|_| img.f64("SCALING_FACTOR"))
+        .transpose()?
+        .unwrap_or(1.0);
+    let offset = img
+        .find("OFFSET")
+        .map(|_| img.f64("OFFSET"))
+        .transpose()?
+        .unwrap_or(0.0);
 
     let (w, h) = (samples as usize, lines as usize);
     let start = label.pointer("IMAGE")? as usize;
@@ -540,16 +667,26 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
     }
     let mut raw = Vec::with_capacity(w * h);
     for r in 0..h {
-        let row = &bytes[start + r * line_bytes + prefix..start + r * line_bytes + prefix + w * bps];
+        let row =
+            &bytes[start + r * line_bytes + prefix..start + r * line_bytes + prefix + w * bps];
         if bps == 1 {
             raw.extend(row.iter().map(|&v| v as u16));
         } else if little {
-            raw.extend(row.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])));
+            raw.extend(
+                row.chunks_exact(2)
+                    .map(|c| u16::from_le_bytes([c[0], c[1]])),
+            );
         } else {
-            raw.extend(row.chunks_exact(2).map(|c| u16::from_be_bytes([c[0], c[1]])));
+            raw.extend(
+                row.chunks_exact(2)
+                    .map(|c| u16::from_be_bytes([c[0], c[1]])),
+            );
         }
     }
-    let data = raw.iter().map(|&v| (v as f64 * scale + offset) as f32).collect();
+    let data = raw
+        .iter()
+        .map(|&v| (v as f64 * scale + offset) as f32)
+        .collect();
     let scaled = Raster::new(w, h, data)?;
     Ok(Pds3Image { label, raw, scaled })
 }

@@ -25,12 +25,20 @@ impl Raster {
                 format!("{} values for a {width}x{height} image", data.len()),
             ));
         }
-        Ok(Self { width, height, data })
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
     }
 
     /// An image filled with `value`.
     pub fn filled(width: usize, height: usize, value: f32) -> Self {
-        Self { width, height, data: vec![value; width * height] }
+        Self {
+            width,
+            height,
+            data: vec![value; width * height],
+        }
     }
 
     /// Builds an image from `f(col, row)`.
@@ -41,7 +49,11 @@ impl Raster {
                 data.push(f(c, r));
             }
         }
-        Self { width, height, data }
+        Self {
+            width,
+            height,
+            data,
+        }
     }
 
     /// Value at column `col`, row `row` (panics when out of range).
@@ -62,7 +74,11 @@ impl Raster {
         for r in (0..self.height).rev() {
             data.extend_from_slice(&self.data[r * self.width..(r + 1) * self.width]);
         }
-        Self { width: self.width, height: self.height, data }
+        Self {
+            width: self.width,
+            height: self.height,
+            data,
+        }
     }
 
     /// Fails unless `other` has the same size; `what` names the comparison.

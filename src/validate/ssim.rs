@@ -56,7 +56,9 @@ pub struct SsimResult {
 /// product (separable and identical to the normalised 2-D Gaussian).
 pub fn gaussian_kernel(size: usize, sigma: f64) -> Vec<f64> {
     let c = (size as f64 - 1.0) / 2.0;
-    let k: Vec<f64> = (0..size).map(|i| (-((i as f64 - c).powi(2)) / (2.0 * sigma * sigma)).exp()).collect();
+    let k: Vec<f64> = (0..size)
+        .map(|i| (-((i as f64 - c).powi(2)) / (2.0 * sigma * sigma)).exp())
+        .collect();
     let s: f64 = k.iter().sum();
     k.into_iter().map(|v| v / s).collect()
 }
@@ -90,10 +92,19 @@ fn filter_valid(img: &[f64], w: usize, h: usize, k: &[f64]) -> (Vec<f64>, usize,
 pub fn ssim(a: &Raster, b: &Raster, data_range: f64) -> Result<SsimResult> {
     a.check_same_size(b, "ssim")?;
     if a.width < WINDOW || a.height < WINDOW {
-        return Err(Error::invalid("ssim", format!("images of {}x{} are smaller than the 11x11 window", a.width, a.height)));
+        return Err(Error::invalid(
+            "ssim",
+            format!(
+                "images of {}x{} are smaller than the 11x11 window",
+                a.width, a.height
+            ),
+        ));
     }
     if data_range.is_nan() || data_range <= 0.0 {
-        return Err(Error::invalid("ssim.data_range", format!("{data_range} must be positive")));
+        return Err(Error::invalid(
+            "ssim.data_range",
+            format!("{data_range} must be positive"),
+        ));
     }
     let (w, h) = (a.width, a.height);
     let x: Vec<f64> = a.data.iter().map(|&v| v as f64).collect();
@@ -109,7 +120,8 @@ pub fn ssim(a: &Raster, b: &Raster, data_range: f64) -> Result<SsimResult> {
     let c2 = (K2 * data_range).powi(2);
     let c3 = c2 / 2.0;
     let n = ow * oh;
-    let (mut m_s, mut m_l, mut m_c, mut m_st) = (vec![0f32; n], vec![0f32; n], vec![0f32; n], vec![0f32; n]);
+    let (mut m_s, mut m_l, mut m_c, mut m_st) =
+        (vec![0f32; n], vec![0f32; n], vec![0f32; n], vec![0f32; n]);
     let (mut sum_s, mut sum_l, mut sum_c, mut sum_st) = (0.0, 0.0, 0.0, 0.0);
     for i in 0..n {
         let (ux, uy) = (mx[i], my[i]);
@@ -121,7 +133,8 @@ pub fn ssim(a: &Raster, b: &Raster, data_range: f64) -> Result<SsimResult> {
         let c = (2.0 * sx * sy + c2) / (vx + vy + c2);
         let st = (cxy + c3) / (sx * sy + c3);
         // Wang's combined form (identical to l*c*st when C3 = C2/2).
-        let s = ((2.0 * ux * uy + c1) * (2.0 * cxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2));
+        let s =
+            ((2.0 * ux * uy + c1) * (2.0 * cxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2));
         m_s[i] = s as f32;
         m_l[i] = l as f32;
         m_c[i] = c as f32;
