@@ -687,6 +687,43 @@ impl Polygon {
     }
 }
 
+/// Twice the signed area of the part of a convex polygon with coordinate
+/// `axis` ≤ `at`, accumulated edge by edge without building the clipped
+/// polygon.
+#[inline]
+fn half_plane_area2(v: &[(f64, f64)], axis: usize, at: f64) -> f64 {
+    let coord = |p: (f64, f64)| if axis == 0 { p.0 } else { p.1 };
+    let cross = |p: (f64, f64), q: (f64, f64)| p.0 * q.1 - q.0 * p.1;
+    let lerp = |p: (f64, f64), q: (f64, f64)| {
+        let t = (at - coord(p)) / (coord(q) - coord(p));
+        (p.0 + t * (q.0 - p.0), p.1 + t * (q.1 - p.1))
+    };
+    let mut acc = 0.0;
+    let (mut exit, mut enter) = (None, None);
+    let n = v.len();
+    for k in 0..n {
+        let (p, q) = (v[k], v[(k + 1) % n]);
+        match (coord(p) <= at, coord(q) <= at) {
+            (true, true) => acc += cross(p, q),
+            (true, false) => {
+                let i = lerp(p, q);
+                acc += cross(p, i);
+                exit = Some(i);
+            }
+            (false, true) => {
+                let i = lerp(p, q);
+                acc += cross(i, q);
+                enter = Some(i);
+            }
+            (false, false) => {}
+        }
+    }
+    if let (Some(a), Some(b)) = (exit, enter) {
+        acc += cross(a, b);
+    }
+    acc
+}
+
 #[inline]
 fn add(buf: &mut [f32], roi: &Rect, i: i64, j: i64, value: f64) {
     if i >= roi.x0 as i64 && i < roi.x1 as i64 && j >= roi.y0 as i64 && j < roi.y1 as i64 {
@@ -732,18 +769,29 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
         // At most 2×2 pixels: inclusion–exclusion on one vertical and one
         // horizontal grid line.
         let (xs, ys) = ((i0 + 1) as f64, (j0 + 1) as f64);
-        let left = if i1 > i0 {
-            poly.clip(0, xs, true)
+        let sign = if half_plane_area2(quad, 0, f64::INFINITY) < 0.0 {
+            -0.5
         } else {
-            poly
+            0.5
         };
-        let a_left = left.area();
+        let a_left = if i1 > i0 {
+            sign * half_plane_area2(quad, 0, xs)
+        } else {
+            area
+        };
         let (a_top, a_left_top) = if j1 > j0 {
-            (poly.clip(1, ys, true).area(), left.clip(1, ys, true).area())
+            let top = sign * half_plane_area2(quad, 1, ys);
+            let left_top = if i1 > i0 {
+                let left = poly.clip(0, xs, true);
+                sign * half_plane_area2(&left.v[..left.n], 1, ys)
+            } else {
+                top
+            };
+            (top, left_top)
         } else {
             (area, a_left)
         };
-        add(buf, roi, i0, j0, a_left_top * per_area);
+        add(buf, roi, i0, j0, a_left_top.max(0.0) * per_area);
         if i1 > i0 {
             add(buf, roi, i1, j0, (a_top - a_left_top).max(0.0) * per_area);
         }
