@@ -131,28 +131,31 @@ struct Roughness {
 /// ψ is the azimuth between the incidence and emission planes, ψ = 0 when Sun
 /// and camera are on the same side (g = |i − e|), taken from
 /// [`ScatteringGeometry::cos_azimuth`].
+///
+/// Parameters are fixed at build time (constants are precomputed); read them
+/// through [`Hapke::params`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct Hapke {
-    /// w when constant.
-    pub w: f64,
+    /// w (at 550 nm when spectral).
+    pub(super) w: f64,
     /// w(λ) when spectral.
-    pub spectral: Option<SpectralAlbedo>,
+    pub(super) spectral: Option<SpectralAlbedo>,
     /// b.
-    pub b: f64,
+    pub(super) b: f64,
     /// c (Hapke's convention: c > 0 favours backscatter).
-    pub c: f64,
+    pub(super) c: f64,
     /// θ̄ (radians).
-    pub theta_bar: f64,
+    pub(super) theta_bar: f64,
     /// h_S.
-    pub h_s: f64,
+    pub(super) h_s: f64,
     /// B_S0.
-    pub b_s0: f64,
+    pub(super) b_s0: f64,
     /// h_C (None: no CBOE).
-    pub h_c: Option<f64>,
+    pub(super) h_c: Option<f64>,
     /// B_C0.
-    pub b_c0: f64,
+    pub(super) b_c0: f64,
     /// K.
-    pub porosity_k: f64,
+    pub(super) porosity_k: f64,
     /// r0 for `w`, cached.
     r0: f64,
     roughness: Option<Roughness>,
@@ -348,6 +351,30 @@ impl Hapke {
             r0: r0_of(w_const),
             roughness,
         })
+    }
+
+    /// The parameters as a configuration (round-trips through [`ReflectanceConfig::build`]).
+    pub fn params(&self) -> ReflectanceConfig {
+        ReflectanceConfig::Hapke {
+            w: match &self.spectral {
+                None => HapkeAlbedo::Constant(self.w),
+                Some(s) => HapkeAlbedo::Table(
+                    s.wavelength_m
+                        .iter()
+                        .zip(&s.w)
+                        .map(|(l, w)| [l * 1e9, *w])
+                        .collect(),
+                ),
+            },
+            b: self.b,
+            c: self.c,
+            theta_bar: self.theta_bar,
+            h_s: self.h_s,
+            b_s0: self.b_s0,
+            h_c: self.h_c,
+            b_c0: self.b_c0,
+            porosity_k: self.porosity_k,
+        }
     }
 
     /// The configured w (w at 550 nm when spectral).
@@ -821,6 +848,15 @@ mod tests {
                 + h_function(mu0 / 1.7, 0.6) * h_function(mu / 1.7, 0.6)
                 - 1.0);
         assert!((m.radiance_factor(&geo, 0.6) - expected).abs() < 1e-15);
+    }
+
+    #[test]
+    fn params_round_trip() {
+        let cfg = config(0.526, 0.2, 0.187, 0.273, 0.083, 1.0);
+        let Reflectance::Hapke(h) = cfg.build().unwrap() else {
+            unreachable!()
+        };
+        assert_eq!(h.params(), cfg);
     }
 
     #[test]

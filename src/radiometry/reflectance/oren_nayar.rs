@@ -55,9 +55,9 @@ fn alpha_beta(g: &ScatteringGeometry) -> AlphaBeta {
 #[derive(Clone, Debug, PartialEq)]
 pub struct OrenNayar {
     /// ρ.
-    pub albedo: f64,
+    pub(super) albedo: f64,
     /// σ (radians).
-    pub roughness: f64,
+    pub(super) roughness: f64,
     c1: f64,
     c2: f64,
     c3: f64,
@@ -77,6 +77,11 @@ impl OrenNayar {
             c3: 0.125 * s2 / (s2 + 0.09),
             c_ir: 0.17 * s2 / (s2 + 0.13) * FRAC_1_PI,
         }
+    }
+
+    /// σ (radians).
+    pub fn roughness(&self) -> f64 {
+        self.roughness
     }
 
     /// r = f_r μ0. Precondition: μ0, μ ∈ (0, 1], cos g ∈ [−1, 1].
@@ -119,9 +124,9 @@ impl OrenNayar {
 #[derive(Clone, Debug, PartialEq)]
 pub struct OrenNayarQualitative {
     /// ρ.
-    pub albedo: f64,
+    pub(super) albedo: f64,
     /// σ (radians).
-    pub roughness: f64,
+    pub(super) roughness: f64,
     a: f64,
     b: f64,
 }
@@ -136,6 +141,11 @@ impl OrenNayarQualitative {
             a: 1.0 - 0.5 * s2 / (s2 + 0.33),
             b: 0.45 * s2 / (s2 + 0.09),
         }
+    }
+
+    /// σ (radians).
+    pub fn roughness(&self) -> f64 {
+        self.roughness
     }
 
     /// r = f_r μ0. Precondition: μ0, μ ∈ (0, 1], cos g ∈ [−1, 1].
