@@ -358,7 +358,11 @@ impl Frame<'_> {
                 continue;
             }
             let d_phi = ds * (hi - lo);
-            let w_theta = closed_form::theta_weight(self.weight, theta, d_theta);
+            let (theta0, theta1) = (theta - 0.5 * d_theta, theta + 0.5 * d_theta);
+            let w_theta = match self.weight {
+                Weight::Mu0Mu => closed_form::int_sin3(theta0, theta1),
+                Weight::Mu | Weight::LommelSeeliger => closed_form::int_sin2(theta0, theta1),
+            };
             let phi_start = lo + (cell.s0 + 0.5 * ds) * (hi - lo);
             let (mut sp, mut cp) = phi_start.sin_cos();
             let (sd, cd) = d_phi.sin_cos();
@@ -379,8 +383,12 @@ impl Frame<'_> {
                     }
                     Weight::Mu => 2.0 * cos_pa * half_sin,
                     Weight::LommelSeeliger => {
-                        let phi = sp.atan2(cp);
-                        closed_form::ls_phi_weight(phi - 0.5 * d_phi, phi + 0.5 * d_phi, alpha)
+                        let phi = phi_start + b as f64 * d_phi;
+                        closed_form::phi_mu0_mu_over_sum(
+                            phi - 0.5 * d_phi,
+                            phi + 0.5 * d_phi,
+                            alpha,
+                        )
                     }
                 };
                 let omega = self.weight.at(mu0_far, mu_far);
@@ -833,6 +841,28 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn inline_cap_weights_equal_the_closed_forms() {
+        // The per-cap loop evaluates the φ factors from the cap centre's
+        // sin/cos; they must equal closed_form's cap integrals.
+        for &(alpha, p0, d) in &[(0.3f64, -1.0f64, 0.01f64), (1.7, 0.2, 0.3), (2.9, 1.3, 0.2)] {
+            let (sa, ca) = alpha.sin_cos();
+            let pc = p0 + 0.5 * d;
+            let (sp, cp) = pc.sin_cos();
+            let cos_2pa = (cp * cp - sp * sp) * ca + 2.0 * sp * cp * sa;
+            let mu0mu = 0.5 * (d * ca + cos_2pa * d.sin());
+            let cos_pa = cp * ca + sp * sa;
+            let mu = 2.0 * cos_pa * (0.5 * d).sin();
+            let (t0, t1) = (0.4, 0.9);
+            let s3 = closed_form::int_sin3(t0, t1);
+            let s2 = closed_form::int_sin2(t0, t1);
+            let a = closed_form::cap_mu0_mu(t0, t1, p0, p0 + d, alpha);
+            let b = closed_form::cap_mu(t0, t1, p0, p0 + d, alpha);
+            assert!((s3 * mu0mu - a).abs() <= 1e-12 * a.abs(), "{} {a}", s3 * mu0mu);
+            assert!((s2 * mu - b).abs() <= 1e-12 * b.abs(), "{} {b}", s2 * mu);
+        }
+    }
 
     #[test]
     fn sun_fraction_limits_and_partial_overlap() {
