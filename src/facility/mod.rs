@@ -1,4 +1,5 @@
 //! Facility driver: states in, display LUT, screen, serial sync, frame log.
 
+pub mod lut;
 pub mod trajectory;
 pub mod udp;
