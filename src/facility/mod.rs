@@ -1,5 +1,6 @@
 //! Facility driver: states in, display LUT, screen, serial sync, frame log.
 
+pub mod dither;
 pub mod lut;
 pub mod trajectory;
 pub mod udp;
