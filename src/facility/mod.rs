@@ -1,6 +1,7 @@
 //! Facility driver: states in, display LUT, screen, serial sync, frame log.
 
 pub mod dither;
+pub mod frame_id;
 pub mod lut;
 pub mod trajectory;
 pub mod udp;
