@@ -3,5 +3,6 @@
 pub mod dither;
 pub mod frame_id;
 pub mod lut;
+pub mod serial;
 pub mod trajectory;
 pub mod udp;
