@@ -1,5 +1,6 @@
 //! Facility driver: states in, display LUT, screen, serial sync, frame log.
 
+pub mod config;
 pub mod dither;
 pub mod frame_id;
 pub mod lut;
