@@ -1,6 +1,7 @@
 //! Facility driver: states in, display LUT, screen, serial sync, frame log.
 
 pub mod config;
+pub mod display;
 pub mod dither;
 pub mod frame_id;
 pub mod lut;
