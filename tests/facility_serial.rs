@@ -48,7 +48,10 @@ fn commands_acks_unplug_and_reconnect_over_a_pty() {
     opts.dtr = Some(true); // ENOTTY on a pty: must be ignored
     opts.rts = Some(true);
     let mut port = SerialPortSync::open(opts).unwrap();
-    assert!(port.wait_connected(Duration::from_secs(3)), "never connected");
+    assert!(
+        port.wait_connected(Duration::from_secs(3)),
+        "never connected"
+    );
 
     // Command bytes arrive at the master, unchanged.
     let line = "FRAME 1 0.040000 2500\n";

@@ -208,81 +208,108 @@ impl Default for WindowOptions {
     }
 }
 
-/// Native resolution of X screen `monitor` on `$DISPLAY`.
-pub fn x_screen_size(monitor: usize) -> Result<(usize, usize)> {
-    let xlib =
-        x11_dl::xlib::Xlib::open().map_err(|e| Error::Other(format!("cannot load libX11: {e}")))?;
-    // SAFETY: plain Xlib calls on a connection we open and close here.
-    unsafe {
-        let dpy = (xlib.XOpenDisplay)(std::ptr::null());
+/// An Xlib connection of our own, closed on drop.
+struct XConn<'a> {
+    xlib: &'a x11_dl::xlib::Xlib,
+    dpy: *mut x11_dl::xlib::Display,
+}
+
+impl<'a> XConn<'a> {
+    fn open(xlib: &'a x11_dl::xlib::Xlib) -> Result<XConn<'a>> {
+        // SAFETY: XOpenDisplay with NULL uses $DISPLAY; the result is checked.
+        let dpy = unsafe { (xlib.XOpenDisplay)(std::ptr::null()) };
         if dpy.is_null() {
             return Err(Error::Other(format!(
                 "cannot open X display {:?}",
                 std::env::var("DISPLAY").unwrap_or_default()
             )));
         }
-        let count = (xlib.XScreenCount)(dpy);
-        let res = if monitor as i32 >= count {
-            Err(Error::invalid(
-                "screen.monitor",
-                format!("X screen {monitor} does not exist ({count} screens)"),
-            ))
-        } else {
-            let w = (xlib.XDisplayWidth)(dpy, monitor as i32);
-            let h = (xlib.XDisplayHeight)(dpy, monitor as i32);
-            let default = (xlib.XDefaultScreen)(dpy) as usize;
-            if default != monitor {
-                Err(Error::invalid(
+        Ok(XConn { xlib, dpy })
+    }
+
+    /// Native size of X screen `monitor`, which must be the default screen.
+    fn screen_size(&self, monitor: usize) -> Result<(usize, usize)> {
+        let x = self.xlib;
+        // SAFETY: queries on a live connection.
+        unsafe {
+            let count = (x.XScreenCount)(self.dpy);
+            if monitor as i64 >= count as i64 {
+                return Err(Error::invalid(
                     "screen.monitor",
-                    format!("X screen {monitor} is not the default screen {default} of $DISPLAY; run with DISPLAY=<host>:<n>.{monitor}"),
-                ))
-            } else {
-                Ok((w as usize, h as usize))
+                    format!("X screen {monitor} does not exist ({count} screens)"),
+                ));
             }
-        };
-        (xlib.XCloseDisplay)(dpy);
-        res
+            let default = (x.XDefaultScreen)(self.dpy) as usize;
+            if default != monitor {
+                return Err(Error::invalid(
+                    "screen.monitor",
+                    format!(
+                        "X screen {monitor} is not the default screen {default} of $DISPLAY; \
+                         run with DISPLAY=<host>:<n>.{monitor}"
+                    ),
+                ));
+            }
+            let w = (x.XDisplayWidth)(self.dpy, monitor as i32);
+            let h = (x.XDisplayHeight)(self.dpy, monitor as i32);
+            Ok((w as usize, h as usize))
+        }
+    }
+
+    /// Asks the window manager (if any) for full screen and always-on-top,
+    /// and moves the window to the screen origin.
+    fn request_fullscreen(&self, window: u64, monitor: usize) {
+        use x11_dl::xlib;
+        let x = self.xlib;
+        let dpy = self.dpy;
+        // SAFETY: Xlib calls on a live connection; the event is zero-initialised
+        // and every field the protocol reads is set.
+        unsafe {
+            let atom = |name: &[u8]| (x.XInternAtom)(dpy, name.as_ptr() as *const _, xlib::False);
+            let state = atom(b"_NET_WM_STATE\0");
+            let full = atom(b"_NET_WM_STATE_FULLSCREEN\0");
+            let above = atom(b"_NET_WM_STATE_ABOVE\0");
+            let root = (x.XRootWindow)(dpy, monitor as i32);
+            let mut ev: xlib::XEvent = std::mem::zeroed();
+            ev.client_message.type_ = xlib::ClientMessage;
+            ev.client_message.window = window;
+            ev.client_message.message_type = state;
+            ev.client_message.format = 32;
+            let l = ev.client_message.data.as_longs_mut();
+            l[0] = 1; // _NET_WM_STATE_ADD
+            l[1] = full as _;
+            l[2] = above as _;
+            l[3] = 1; // source: normal application
+            (x.XSendEvent)(
+                dpy,
+                root,
+                xlib::False,
+                xlib::SubstructureRedirectMask | xlib::SubstructureNotifyMask,
+                &mut ev,
+            );
+            (x.XMoveWindow)(dpy, window, 0, 0);
+            (x.XRaiseWindow)(dpy, window);
+            (x.XSync)(dpy, xlib::False);
+        }
     }
 }
 
-/// Asks the window manager (if any) for full screen and always-on-top, and
-/// moves the window to the screen origin.
-fn request_fullscreen(xlib: &x11_dl::xlib::Xlib, window: u64, monitor: usize) -> Result<()> {
-    use x11_dl::xlib;
-    // SAFETY: Xlib calls on our own connection; the event is fully initialised.
-    unsafe {
-        let dpy = (xlib.XOpenDisplay)(std::ptr::null());
-        if dpy.is_null() {
-            return Err(Error::Other("cannot open X display".into()));
+impl Drop for XConn<'_> {
+    fn drop(&mut self) {
+        // SAFETY: closing the connection we opened.
+        unsafe {
+            (self.xlib.XCloseDisplay)(self.dpy);
         }
-        let atom = |name: &[u8]| (xlib.XInternAtom)(dpy, name.as_ptr() as *const _, xlib::False);
-        let state = atom(b"_NET_WM_STATE\0");
-        let full = atom(b"_NET_WM_STATE_FULLSCREEN\0");
-        let above = atom(b"_NET_WM_STATE_ABOVE\0");
-        let root = (xlib.XRootWindow)(dpy, monitor as i32);
-        let mut ev: xlib::XEvent = std::mem::zeroed();
-        ev.client_message.type_ = xlib::ClientMessage;
-        ev.client_message.window = window;
-        ev.client_message.message_type = state;
-        ev.client_message.format = 32;
-        let l = ev.client_message.data.as_longs_mut();
-        l[0] = 1; // _NET_WM_STATE_ADD
-        l[1] = full as _;
-        l[2] = above as _;
-        l[3] = 1; // source: normal application
-        (xlib.XSendEvent)(
-            dpy,
-            root,
-            xlib::False,
-            xlib::SubstructureRedirectMask | xlib::SubstructureNotifyMask,
-            &mut ev,
-        );
-        (xlib.XMoveWindow)(dpy, window, 0, 0);
-        (xlib.XRaiseWindow)(dpy, window);
-        (xlib.XSync)(dpy, xlib::False);
-        (xlib.XCloseDisplay)(dpy);
     }
-    Ok(())
+}
+
+/// Native resolution of X screen `monitor` on `$DISPLAY`.
+pub fn x_screen_size(monitor: usize) -> Result<(usize, usize)> {
+    let xlib =
+        x11_dl::xlib::Xlib::open().map_err(|e| Error::Other(format!("cannot load libX11: {e}")))?;
+    let conn = XConn::open(&xlib)?;
+    let size = conn.screen_size(monitor);
+    drop(conn);
+    size
 }
 
 /// Full-screen borderless X11 window (see the module docs).
@@ -308,9 +335,13 @@ impl WindowDisplay {
     /// Opens the full-screen window on `$DISPLAY`.
     pub fn open(opts: &WindowOptions) -> Result<WindowDisplay> {
         use raw_window_handle::{HasDisplayHandle, RawDisplayHandle};
-        let (w, h) = x_screen_size(opts.monitor)?;
         let xlib = x11_dl::xlib::Xlib::open()
             .map_err(|e| Error::Other(format!("cannot load libX11: {e}")))?;
+        // Our connection stays open until minifb's exists: an X server that
+        // resets when its last client leaves (Xvfb's default) would
+        // otherwise refuse minifb's connection while resetting.
+        let own = XConn::open(&xlib)?;
+        let (w, h) = own.screen_size(opts.monitor)?;
         let window = minifb::Window::new(
             &opts.title,
             w,
@@ -325,7 +356,7 @@ impl WindowDisplay {
                 ..Default::default()
             },
         )
-        .map_err(|e| Error::Other(format!("cannot create the {w}×{h} window: {e}")))?;
+        .map_err(|e| Error::Other(format!("cannot create the {w}×{h} window: {e:?}")))?;
         let dpy = match window.display_handle().map(|d| d.as_raw()) {
             Ok(RawDisplayHandle::Xlib(x)) => x
                 .display
@@ -333,7 +364,8 @@ impl WindowDisplay {
                 .ok_or_else(|| Error::Other("minifb gave no Xlib display".into()))?,
             _ => return Err(Error::Other("minifb window is not an Xlib window".into())),
         };
-        request_fullscreen(&xlib, window.get_window_handle() as u64, opts.monitor)?;
+        own.request_fullscreen(window.get_window_handle() as u64, opts.monitor);
+        drop(own);
         Ok(WindowDisplay {
             window,
             xlib,
