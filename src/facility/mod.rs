@@ -4,6 +4,7 @@ pub mod config;
 pub mod display;
 pub mod dither;
 pub mod frame_id;
+pub mod log;
 pub mod lut;
 pub mod serial;
 pub mod trajectory;
