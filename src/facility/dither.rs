@@ -677,6 +677,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::needless_range_loop)]
     fn bayer_matches_published_matrices() {
         // Bayer (1973) index matrices.
         let m2 = ThresholdMatrix::bayer(2).unwrap();

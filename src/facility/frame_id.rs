@@ -193,12 +193,12 @@ impl FrameIdCode {
             return Err(DecodeError::OutOfImage);
         }
         let (on, off) = (samples[0], samples[1]);
-        if !(on > off) {
+        if on.partial_cmp(&off) != Some(std::cmp::Ordering::Greater) {
             return Err(DecodeError::NoContrast);
         }
         let thr = 0.5 * (on + off);
         let b: Vec<bool> = samples.iter().map(|&s| s > thr).collect();
-        if !(b[0] && !b[1] && !b[n - 2] && b[n - 1]) {
+        if !b[0] || b[1] || b[n - 2] || !b[n - 1] {
             return Err(DecodeError::Framing);
         }
         let data = &b[2..2 + self.bits as usize];

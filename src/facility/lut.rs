@@ -77,7 +77,10 @@ impl Pchip {
                 "need at least two points of x and y",
             ));
         }
-        if x.windows(2).any(|w| !(w[1] > w[0])) || x.iter().chain(&y).any(|v| !v.is_finite()) {
+        if x.windows(2)
+            .any(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater))
+            || x.iter().chain(&y).any(|v| !v.is_finite())
+        {
             return Err(Error::invalid(
                 "pchip",
                 "x must be finite and strictly increasing",
@@ -248,7 +251,7 @@ impl DisplayLut {
                 ),
             ));
         }
-        if !(ys.last().unwrap() > &ys[0]) {
+        if ys.last().unwrap() <= &ys[0] {
             return Err(Error::parse(
                 path,
                 "radiance is constant: the display does not respond",
@@ -351,7 +354,7 @@ impl DisplayLut {
     pub fn inverse(&self, radiance: f64) -> f64 {
         let black = self.black();
         let max = self.max_radiance();
-        if !(radiance > black) {
+        if radiance.is_nan() || radiance <= black {
             return 0.0;
         }
         if radiance >= max {

@@ -67,7 +67,7 @@ pub fn quat_from_wxyz(q: [f64; 4], field: &str) -> Result<DQuat> {
         ));
     }
     let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
-    if !(norm > 1e-12) || !norm.is_finite() {
+    if norm <= 1e-12 || !norm.is_finite() {
         return Err(Error::invalid(
             field,
             format!("quaternion {q:?} has zero norm"),

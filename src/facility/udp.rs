@@ -132,7 +132,7 @@ impl UdpStateReceiver {
         self.last_t
     }
 
-    fn from_sender(&self, from: SocketAddr) -> bool {
+    fn is_sender(&self, from: SocketAddr) -> bool {
         from.ip() == self.sender.ip()
             && (self.sender.port() == 0 || from.port() == self.sender.port())
     }
@@ -151,14 +151,14 @@ impl UdpStateReceiver {
                     // E.g. ICMP port unreachable reported on Linux: not fatal.
                     self.stats.socket_errors += 1;
                     tracing::warn!("udp receive error: {e}");
-                    if self.stats.socket_errors % 1000 == 0 {
+                    if self.stats.socket_errors.is_multiple_of(1000) {
                         break;
                     }
                     continue;
                 }
             };
             let received = Instant::now();
-            if !self.from_sender(from) {
+            if !self.is_sender(from) {
                 self.stats.foreign += 1;
                 self.last_rejection = Some(format!("foreign sender {from}"));
                 continue;
@@ -223,7 +223,7 @@ mod tests {
             "127.0.0.1:0".parse().unwrap(),
         )
         .unwrap();
-        assert!(r.from_sender("127.0.0.1:5555".parse().unwrap()));
-        assert!(!r.from_sender("127.0.0.2:5555".parse().unwrap()));
+        assert!(r.is_sender("127.0.0.1:5555".parse().unwrap()));
+        assert!(!r.is_sender("127.0.0.2:5555".parse().unwrap()));
     }
 }
