@@ -51,7 +51,7 @@ fn each_malformed_scene_names_its_error() {
 
 #[test]
 fn camera_inside_the_body_is_rejected() {
-    let mut setup = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 0.5, 100.0);
+    let mut setup = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 2.0, 100.0);
     setup.range = 500.0;
     let e = error_of(&setup.toml());
     assert!(

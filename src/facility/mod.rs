@@ -19,8 +19,8 @@
 //! write the [`log`] record.
 
 pub mod config;
-pub mod dither;
 pub mod display;
+pub mod dither;
 pub mod frame_id;
 pub mod log;
 pub mod lut;

@@ -859,7 +859,11 @@ mod tests {
             let s2 = closed_form::int_sin2(t0, t1);
             let a = closed_form::cap_mu0_mu(t0, t1, p0, p0 + d, alpha);
             let b = closed_form::cap_mu(t0, t1, p0, p0 + d, alpha);
-            assert!((s3 * mu0mu - a).abs() <= 1e-12 * a.abs(), "{} {a}", s3 * mu0mu);
+            assert!(
+                (s3 * mu0mu - a).abs() <= 1e-12 * a.abs(),
+                "{} {a}",
+                s3 * mu0mu
+            );
             assert!((s2 * mu - b).abs() <= 1e-12 * b.abs(), "{} {b}", s2 * mu);
         }
     }
