@@ -1,12 +1,19 @@
 //! The subcommands' bodies: argument handling around the library.
 
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use glam::{DQuat, DVec3};
 use serde::Serialize;
 
+use optistim::facility::config::FacilityConfig;
+use optistim::facility::display::{SimDisplay, WindowDisplay, WindowOptions};
+use optistim::facility::driver::{self, RunPlan, StateSource};
+use optistim::facility::serial::{SerialOptions, SerialPortSync, SimSync, SyncPort};
+use optistim::facility::trajectory::Trajectory;
 use optistim::render::detector::{render_scene, PixelGeometry};
 use optistim::render::{output, Renderer};
 use optistim::scene::Scene;
@@ -166,5 +173,134 @@ pub fn bench(
         std::fs::write(path, serde_json::to_string_pretty(&rows)?)
             .with_context(|| format!("writing {}", path.display()))?;
     }
+    Ok(())
+}
+
+/// Arguments of `optistim run`.
+pub struct RunArgs {
+    pub facility: std::path::PathBuf,
+    pub trajectory: Option<std::path::PathBuf>,
+    pub listen: Option<String>,
+    pub sender: String,
+    pub display: String,
+    pub serial: Option<String>,
+    pub frames: Option<u64>,
+    pub log: std::path::PathBuf,
+    pub summary: std::path::PathBuf,
+    pub dump: Option<std::path::PathBuf>,
+}
+
+/// A sync port that does nothing (`--serial none`).
+struct NoSync;
+
+impl SyncPort for NoSync {
+    fn send(&mut self, _line: &str) -> optistim::Result<optistim::facility::serial::SendOutcome> {
+        Ok(optistim::facility::serial::SendOutcome::DeviceGone)
+    }
+    fn wait_ack(&mut self, _t: std::time::Duration) -> optistim::Result<Option<String>> {
+        Ok(None)
+    }
+    fn is_connected(&self) -> bool {
+        false
+    }
+    fn stats(&self) -> optistim::facility::serial::SyncStats {
+        Default::default()
+    }
+}
+
+/// `optistim run`.
+pub fn run(args: &RunArgs) -> Result<()> {
+    let config = FacilityConfig::load(&args.facility)?;
+    let scene = Scene::from_file(&config.scenario.scene)?;
+    let source = match (&args.listen, &args.trajectory, &config.scenario.trajectory) {
+        (Some(url), _, _) => {
+            let addr = url.strip_prefix("udp://").unwrap_or(url);
+            StateSource::Udp {
+                bind: addr
+                    .parse()
+                    .with_context(|| format!("--listen: `{url}` is not udp://HOST:PORT"))?,
+                sender: args
+                    .sender
+                    .parse()
+                    .with_context(|| format!("--sender: `{}` is not HOST:PORT", args.sender))?,
+            }
+        }
+        (None, Some(path), _) | (None, None, Some(path)) => {
+            StateSource::Replay(Trajectory::load(path)?)
+        }
+        (None, None, None) => anyhow::bail!(
+            "no state source: give --trajectory or --listen, or set scenario.trajectory in {}",
+            args.facility.display()
+        ),
+    };
+    for p in [&args.log, &args.summary] {
+        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
+            .context("installing the Ctrl-C handler")?;
+    }
+    let serial_choice = args
+        .serial
+        .clone()
+        .or_else(|| config.sync.port.as_ref().map(|p| p.display().to_string()))
+        .unwrap_or_else(|| "sim".into());
+    let mut sync: Box<dyn SyncPort> = match serial_choice.as_str() {
+        "sim" => Box::new(SimSync::new()),
+        "none" => Box::new(NoSync),
+        path => Box::new(SerialPortSync::open(SerialOptions::new(
+            path,
+            config.sync.baud,
+        ))?),
+    };
+    let (w, h) = config.screen_size();
+    let plan = RunPlan {
+        config,
+        scene,
+        source,
+        frames: args.frames,
+        log: args.log.clone(),
+        summary: args.summary.clone(),
+    };
+    let summary = match args.display.as_str() {
+        "sim" => {
+            let keep = if args.dump.is_some() { 120 } else { 1 };
+            let mut display = SimDisplay::new(w, h, keep);
+            let s = driver::run(plan, &mut display, sync.as_mut(), stop)?;
+            if let Some(dir) = &args.dump {
+                let files = display.dump_png(dir)?;
+                tracing::info!("wrote {} frames to {}", files.len(), dir.display());
+            }
+            s
+        }
+        "window" => {
+            let mut display = WindowDisplay::open(&WindowOptions {
+                monitor: plan.config.screen.monitor,
+                title: "optistim".into(),
+            })?;
+            driver::run(plan, &mut display, sync.as_mut(), stop)?
+        }
+        other => anyhow::bail!("--display must be `sim` or `window`, not `{other}`"),
+    };
+    let lat = &summary.latency_state_to_present;
+    let ms = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{:.2} ms", x * 1e3));
+    println!(
+        "frames {}  missed deadlines {}  dropped states {}  latency state->present p50 {} p99 {} max {}",
+        summary.frames,
+        summary.missed_deadlines,
+        summary.dropped_states,
+        ms(lat.p50),
+        ms(lat.p99),
+        ms(lat.max)
+    );
+    println!(
+        "log: {}  summary: {}",
+        args.log.display(),
+        args.summary.display()
+    );
     Ok(())
 }

@@ -3,6 +3,10 @@
 //! serial sync and timing.
 //!
 //! ```toml
+//! [scenario]
+//! scene = "moon.toml"         # body, Sun, flight camera (band, exposure); relative to this file
+//! trajectory = "moon_approach.csv"  # optional default replay
+//!
 //! [screen]
 //! resolution = [1920, 1080]   # pixels
 //! pixel_pitch = 2.7e-4        # m
@@ -61,6 +65,8 @@ use super::frame_id::Corner;
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FacilityConfig {
+    /// What is shown: the scene file and a default trajectory.
+    pub scenario: ScenarioConfig,
     /// Display.
     pub screen: ScreenConfig,
     /// Collimator optics.
@@ -81,6 +87,19 @@ pub struct FacilityConfig {
     /// Timing.
     #[serde(default)]
     pub timing: TimingConfig,
+}
+
+/// `[scenario]`
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioConfig {
+    /// Scene file (see docs/SCENE.md): body, Sun and the flight camera's
+    /// band and exposure. Its `[state]` gives the body pose when a
+    /// trajectory omits it.
+    pub scene: PathBuf,
+    /// Trajectory replayed when the command line gives no source.
+    #[serde(default)]
+    pub trajectory: Option<PathBuf>,
 }
 
 /// `[screen]`
@@ -324,6 +343,10 @@ impl FacilityConfig {
                 *p = dir.join(&*p);
             }
         };
+        fix(&mut self.scenario.scene);
+        if let Some(t) = &mut self.scenario.trajectory {
+            fix(t);
+        }
         fix(&mut self.calibration.lut);
         if let Some(f) = &mut self.calibration.flat_field {
             fix(f);
@@ -422,6 +445,9 @@ mod tests {
     use super::*;
 
     const GOOD: &str = r#"
+[scenario]
+scene = "moon.toml"
+
 [screen]
 resolution = [1920, 1080]
 pixel_pitch = 2.7e-4
@@ -544,6 +570,9 @@ state_timeout = 0.25
     #[test]
     fn defaults_for_optional_sections() {
         let text = r#"
+[scenario]
+scene = "s.toml"
+
 [screen]
 resolution = [640, 480]
 pixel_pitch = 1e-4

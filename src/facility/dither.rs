@@ -435,7 +435,12 @@ impl Converter {
         self.prev_roi
     }
 
-    /// Forget the previous ROI (the caller cleared the frame itself).
+    /// The frame-buffer pixel of drive level 0 (the screen's black).
+    pub fn black_pixel(&self) -> u32 {
+        self.lut.encode_pixel(0)
+    }
+
+    /// Forgets the previous ROI (the caller cleared it).
     pub fn forget_previous_roi(&mut self) {
         self.prev_roi = None;
     }

@@ -11,6 +11,7 @@
 //! | [`serial`] | per-frame sync command over a serial port that never blocks the loop |
 //! | [`log`] | write-through JSON-lines frame log and run summary |
 //! | [`config`] | the facility TOML file |
+//! | [`driver`] | the real-time loop of `optistim run` tying these together |
 //!
 //! Per frame, the loop is expected to: take a state ([`udp`] or
 //! [`trajectory`]), render the body's ROI, [`dither::Converter::convert`] it
@@ -21,6 +22,7 @@
 pub mod config;
 pub mod display;
 pub mod dither;
+pub mod driver;
 pub mod frame_id;
 pub mod log;
 pub mod lut;

@@ -1,0 +1,502 @@
+//! The real-time loop of `optistim run`: states in, screen-space render,
+//! drive levels, present, sync, log.
+//!
+//! Two threads share the work. The *render* thread takes the newest state,
+//! renders the body's radiance on the screen's pixel grid as seen through the
+//! collimator (the screen is a pinhole of focal length f_collimator and the
+//! screen's pixel pitch), converts it into drive levels inside the body's
+//! region of interest and draws the frame-id block. The calling thread
+//! *presents* the frame at its slot, sends the sync line, waits for the
+//! acknowledgement if asked, and writes the log record. Two frame buffers
+//! circulate between them, so frame k+1 is rendered while frame k is on
+//! screen, and nothing is allocated per frame.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use glam::DQuat;
+
+use super::config::FacilityConfig;
+use super::display::Display;
+use super::dither::{ConvertSettings, Converter, Roi, ThresholdMatrix};
+use super::frame_id::FrameIdCode;
+use super::log::{FrameLog, FrameRecord, Summary};
+use super::lut::{DisplayLut, FlatField};
+use super::serial::{CommandTemplate, FrameCommand, SendOutcome, SyncPort};
+use super::trajectory::{State as TrajectoryState, Trajectory};
+use super::udp::UdpStateReceiver;
+use crate::error::{Error, Result};
+use crate::radiometry::spectrum::band_integrals;
+use crate::render::Renderer;
+use crate::scene::{Pinhole, Scene, State};
+
+/// Where states come from.
+pub enum StateSource {
+    /// Replay a trajectory, one state per frame.
+    Replay(Trajectory),
+    /// Closed loop: one state per datagram from `sender`, newest wins.
+    Udp {
+        /// Address to bind.
+        bind: SocketAddr,
+        /// Only datagrams from this address are accepted.
+        sender: SocketAddr,
+    },
+}
+
+/// Everything `run` needs besides the backends.
+pub struct RunPlan {
+    /// Facility configuration.
+    pub config: FacilityConfig,
+    /// The scene (body, Sun, flight camera).
+    pub scene: Scene,
+    /// State source.
+    pub source: StateSource,
+    /// Stop after this many frames (replay: at most the trajectory's).
+    pub frames: Option<u64>,
+    /// Frame log (JSON lines, appended).
+    pub log: PathBuf,
+    /// Run summary (JSON).
+    pub summary: PathBuf,
+}
+
+/// What the render thread hands to the presenter.
+struct Job {
+    buffer: Vec<u32>,
+    frame: u64,
+    state_t: f64,
+    state_received: Option<Instant>,
+    render_start: Instant,
+    render_end: Instant,
+    convert_end: Instant,
+    clipped: u64,
+    peak: f64,
+    safe: bool,
+}
+
+/// Static part of the screen-space renderer.
+struct ScreenModel {
+    renderer: Renderer,
+    solid_angle: Vec<f32>,
+    band_irradiance_1au: f64,
+    albedo: Option<f64>,
+    roi_target: Vec<f32>,
+}
+
+/// The screen as a pinhole camera behind the collimator.
+pub fn screen_pinhole(config: &FacilityConfig) -> Pinhole {
+    let [w, h] = config.screen.resolution;
+    let f = config.collimator.focal_length / config.screen.pixel_pitch;
+    Pinhole {
+        width: w,
+        height: h,
+        fx: f,
+        fy: f,
+        cx: w as f64 / 2.0 + config.alignment.offset_px[0],
+        cy: h as f64 / 2.0 + config.alignment.offset_px[1],
+    }
+}
+
+/// Scene state of a trajectory state: the body pose defaults to the
+/// scene file's; the camera attitude is turned by the screen's rotation
+/// about the boresight.
+fn scene_state(s: &TrajectoryState, base: &State, screen_rotation: f64) -> State {
+    State {
+        body_position: s.body_position.unwrap_or(base.body_position),
+        body_attitude: s.body_attitude.unwrap_or(base.body_attitude),
+        camera_position: s.camera_position,
+        camera_attitude: s.camera_attitude * DQuat::from_rotation_z(screen_rotation),
+        sun_position: s.sun_position,
+        occulter: base.occulter,
+    }
+}
+
+impl ScreenModel {
+    fn new(config: &FacilityConfig, scene: &Scene) -> Self {
+        let pin = screen_pinhole(config);
+        let renderer = Renderer::new(pin.clone());
+        let solid_angle = pin.solid_angle_table();
+        let cam = &scene.camera;
+        let bands = band_integrals(
+            &scene.sun,
+            &cam.quantum_efficiency,
+            &cam.transmission,
+            cam.band,
+            1,
+        );
+        let albedo = (!scene.body.reflectance.is_spectrally_flat())
+            .then(|| scene.body.reflectance.albedo_at(bands[0].centroid));
+        ScreenModel {
+            renderer,
+            solid_angle,
+            band_irradiance_1au: bands[0].irradiance_1au,
+            albedo,
+            roi_target: Vec::new(),
+        }
+    }
+
+    /// Render the scene radiance [W m⁻² sr⁻¹] into `roi_target`; returns
+    /// the ROI (screen pixels) or None when nothing is visible.
+    fn render(&mut self, scene: &Scene, state: &State) -> Option<Roi> {
+        let stats = self
+            .renderer
+            .render_flux(&scene.body, state, &scene.render, self.albedo);
+        let r = stats.roi;
+        if r.is_empty() {
+            return None;
+        }
+        let w = self.renderer.camera().width;
+        let flux = self.renderer.flux();
+        self.roi_target.clear();
+        for row in r.y0..r.y1 {
+            let k = row * w;
+            self.roi_target.extend(
+                flux[k + r.x0..k + r.x1]
+                    .iter()
+                    .zip(&self.solid_angle[k + r.x0..k + r.x1])
+                    .map(|(&f, &o)| (self.band_irradiance_1au * f as f64 / o as f64) as f32),
+            );
+        }
+        Some(Roi::new(r.x0, r.y0, r.width(), r.height()))
+    }
+}
+
+/// Frame source used by the render thread.
+enum Source {
+    Replay {
+        states: Vec<TrajectoryState>,
+        next: usize,
+    },
+    Udp(Box<UdpStateReceiver>),
+}
+
+/// The render thread: waits for a free buffer, takes the newest state,
+/// renders, converts, draws the frame id, and hands the frame over.
+#[allow(clippy::too_many_arguments)]
+fn render_loop(
+    scene: Scene,
+    mut model: ScreenModel,
+    mut converter: Converter,
+    frame_id: FrameIdCode,
+    mut source: Source,
+    frames: Option<u64>,
+    state_timeout: Duration,
+    screen_rotation: f64,
+    stop: Arc<AtomicBool>,
+    free: Receiver<Vec<u32>>,
+    ready: SyncSender<Job>,
+    dropped: Arc<std::sync::atomic::AtomicU64>,
+) -> Result<()> {
+    let black = converter.black_pixel();
+    let mut last: Option<(TrajectoryState, Instant)> = None;
+    // ROI last drawn into each buffer, by buffer address.
+    let mut drawn: Vec<(usize, Option<Roi>)> = Vec::new();
+    let mut frame = 0u64;
+    let mut warned_peak = false;
+    while !stop.load(Ordering::Relaxed) {
+        if frames.is_some_and(|n| frame >= n) {
+            break;
+        }
+        let Ok(mut buffer) = free.recv() else { break };
+        let render_start = Instant::now();
+        let (state, received) = match &mut source {
+            Source::Replay { states, next } => {
+                if *next >= states.len() {
+                    break;
+                }
+                *next += 1;
+                (Some(states[*next - 1].clone()), None)
+            }
+            Source::Udp(rx) => {
+                if let Some((s, at)) = rx.latest() {
+                    last = Some((s, at));
+                }
+                dropped.store(rx.stats().dropped(), Ordering::Relaxed);
+                match &last {
+                    Some((s, at)) if at.elapsed() <= state_timeout => (Some(s.clone()), Some(*at)),
+                    _ => (None, last.as_ref().map(|l| l.1)),
+                }
+            }
+        };
+        // Clear what this buffer showed last time (cost: that ROI only).
+        let key = buffer.as_ptr() as usize;
+        let slot = match drawn.iter().position(|(k, _)| *k == key) {
+            Some(i) => i,
+            None => {
+                drawn.push((key, None));
+                drawn.len() - 1
+            }
+        };
+        if let Some(old) = drawn[slot].1.take() {
+            let w = model.renderer.camera().width;
+            for row in old.y..old.y + old.height {
+                buffer[row * w + old.x..row * w + old.x + old.width].fill(black);
+            }
+        }
+        converter.forget_previous_roi();
+        let (state_t, safe) = match &state {
+            Some(s) => (s.t, false),
+            None => (f64::NAN, true),
+        };
+        let mut roi = None;
+        if let Some(s) = &state {
+            let st = scene_state(s, &scene.state, screen_rotation);
+            roi = model.render(&scene, &st);
+        }
+        let render_end = Instant::now();
+        let mut clipped = 0;
+        let mut peak = 0.0;
+        if let Some(r) = roi {
+            let stats = converter.convert(&model.roi_target, r, frame, &mut buffer)?;
+            clipped = stats.clipped();
+            peak = stats.peak_target;
+            if stats.clipped_high > 0 && !warned_peak {
+                warned_peak = true;
+                tracing::warn!(
+                    frame,
+                    peak_radiance = peak,
+                    pixels = stats.clipped_high,
+                    "scene peak exceeds what the screen can show at this k; clipped"
+                );
+            }
+        }
+        drawn[slot].1 = roi;
+        if safe {
+            tracing::warn!(frame, "no current state: showing the safe (black) frame");
+        }
+        frame_id.encode(&mut buffer, frame)?;
+        let convert_end = Instant::now();
+        let job = Job {
+            buffer,
+            frame,
+            state_t,
+            state_received: received,
+            render_start,
+            render_end,
+            convert_end,
+            clipped,
+            peak,
+            safe,
+        };
+        if ready.send(job).is_err() {
+            break;
+        }
+        frame += 1;
+    }
+    Ok(())
+}
+
+/// Run the loop until the frames are done, the display closes or `stop`
+/// is set. Returns the summary (also written to `plan.summary`).
+pub fn run<D: Display, S: SyncPort + ?Sized>(
+    plan: RunPlan,
+    display: &mut D,
+    sync: &mut S,
+    stop: Arc<AtomicBool>,
+) -> Result<Summary> {
+    let config = &plan.config;
+    let scene = plan.scene;
+    let (w, h) = config.screen_size();
+    if display.size() != (w, h) {
+        return Err(Error::invalid(
+            "screen.resolution",
+            format!(
+                "{w}×{h} in the config but the display is {}×{}",
+                display.size().0,
+                display.size().1
+            ),
+        ));
+    }
+    // Calibration first: a bad file stops the run before anything is shown.
+    let lut = DisplayLut::load(&config.calibration.lut, config.drive.bits)?;
+    let lut_sha = lut.sha256().to_string();
+    let flat = match &config.calibration.flat_field {
+        Some(p) => Some(FlatField::load(p, (w, h))?),
+        None => None,
+    };
+    let flat_sha = flat.as_ref().map(|f| f.sha256().to_string());
+    let k = config.drive.k()?;
+    let converter = Converter::new(
+        lut,
+        flat,
+        ThresholdMatrix::for_kind(config.drive.dither, config.drive.seed)?,
+        ConvertSettings {
+            transmission: config.collimator.transmission,
+            scale_k: k,
+            temporal: config.drive.temporal,
+            seed: config.drive.seed,
+            block: 8,
+        },
+        (w, h),
+    )?;
+    let fid = &config.frame_id;
+    let frame_id = FrameIdCode::new(
+        fid.enabled,
+        fid.corner,
+        fid.bits,
+        fid.cell_px,
+        config.drive.bits,
+        (w, h),
+    )?;
+    let template = CommandTemplate::parse(&config.sync.template)?;
+    let exposure_us = (config
+        .drive
+        .facility_exposure
+        .unwrap_or(scene.camera.exposure)
+        * 1e6)
+        .round() as u64;
+    let (source, frames) = match plan.source {
+        StateSource::Replay(t) => {
+            let n = t.len() as u64;
+            (
+                Source::Replay {
+                    states: t.states,
+                    next: 0,
+                },
+                Some(plan.frames.map_or(n, |f| f.min(n))),
+            )
+        }
+        StateSource::Udp { bind, sender } => (
+            Source::Udp(Box::new(UdpStateReceiver::bind(bind, sender)?)),
+            plan.frames,
+        ),
+    };
+    tracing::info!(
+        k,
+        screen = format!("{w}x{h}"),
+        "facility scale k (flight radiance × k = screen radiance before τ and flat field)"
+    );
+
+    let model = ScreenModel::new(config, &scene);
+    let run_start = Instant::now();
+    let mut log = FrameLog::open(&plan.log, run_start)?;
+    let period = Duration::from_secs_f64(1.0 / config.screen.refresh_hz);
+    let state_timeout = Duration::from_secs_f64(config.timing.state_timeout);
+    let (free_tx, free_rx): (Sender<Vec<u32>>, Receiver<Vec<u32>>) = channel();
+    let (ready_tx, ready_rx) = sync_channel::<Job>(1);
+    let black = converter.black_pixel();
+    for _ in 0..2 {
+        free_tx.send(vec![black; w * h]).ok();
+    }
+    let dropped = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let render_stop = stop.clone();
+    let render_dropped = dropped.clone();
+    let rotation = config.alignment.rotation;
+    let worker = std::thread::Builder::new()
+        .name("optistim-render".into())
+        .spawn(move || {
+            render_loop(
+                scene,
+                model,
+                converter,
+                frame_id,
+                source,
+                frames,
+                state_timeout,
+                rotation,
+                render_stop,
+                free_rx,
+                ready_tx,
+                render_dropped,
+            )
+        })
+        .map_err(|e| Error::Other(format!("cannot start the render thread: {e}")))?;
+
+    let ack_timeout = Duration::from_secs_f64(config.sync.ack_timeout);
+    let mut schedule: Option<Instant> = None;
+    let mut result = Ok(());
+    while !stop.load(Ordering::Relaxed) {
+        let job = match ready_rx.recv_timeout(Duration::from_millis(200)) {
+            Ok(job) => job,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                if !display.is_open() {
+                    break;
+                }
+                continue;
+            }
+            Err(_) => break,
+        };
+        if !display.is_open() {
+            break;
+        }
+        // Frame slots: the first frame sets the clock.
+        let slot = *schedule.get_or_insert_with(Instant::now);
+        let now = Instant::now();
+        if slot > now {
+            std::thread::sleep(slot - now);
+        }
+        let deadline = slot + period;
+        let presented = match display.present(&job.buffer) {
+            Ok(t) => t,
+            Err(e) => {
+                result = Err(e);
+                break;
+            }
+        };
+        let line = template.render(&FrameCommand {
+            id: job.frame,
+            t: if job.state_t.is_finite() {
+                job.state_t
+            } else {
+                -1.0
+            },
+            exposure_us,
+        });
+        let outcome = sync.send(&line);
+        let sync_sent = Instant::now();
+        let mut ack = None;
+        match outcome {
+            Ok(SendOutcome::Queued) => {
+                if config.sync.ack {
+                    if let Ok(Some(_)) = sync.wait_ack(ack_timeout) {
+                        ack = Some(Instant::now());
+                    }
+                }
+            }
+            Ok(other) => tracing::warn!(frame = job.frame, ?other, "sync line not sent"),
+            Err(e) => tracing::warn!(frame = job.frame, error = %e, "sync failed"),
+        }
+        let record = FrameRecord {
+            run: String::new(),
+            frame: job.frame,
+            state_t: job.state_t,
+            t_state_received: Some(log.since_start(job.state_received.unwrap_or(job.render_start))),
+            t_render_start: log.since_start(job.render_start),
+            t_render_end: log.since_start(job.render_end),
+            t_convert_end: log.since_start(job.convert_end),
+            t_presented: log.since_start(presented),
+            t_sync_sent: Some(log.since_start(sync_sent)),
+            t_ack: ack.map(|a| log.since_start(a)),
+            deadline: log.since_start(deadline),
+            missed: false,
+            clipped: job.clipped,
+            peak_radiance: job.peak,
+            k,
+            lut_sha256: lut_sha.clone(),
+            calibration_sha256: flat_sha.clone(),
+            safe_frame: job.safe,
+        };
+        if let Err(e) = log.write(record) {
+            result = Err(e);
+            break;
+        }
+        schedule = Some(slot.max(now) + period);
+        if free_tx.send(job.buffer).is_err() {
+            break;
+        }
+    }
+    stop.store(true, Ordering::Relaxed);
+    drop(ready_rx);
+    drop(free_tx);
+    let worker_result = worker
+        .join()
+        .map_err(|_| Error::Other("render thread panicked".into()))?;
+    log.add_dropped_states(dropped.load(Ordering::Relaxed));
+    let summary = log.write_summary(&plan.summary)?;
+    result?;
+    worker_result?;
+    Ok(summary)
+}
