@@ -25,7 +25,7 @@ use crate::radiometry::reflectance::Reflectance;
 use crate::radiometry::spectrum::AU;
 use crate::radiometry::ScatteringGeometry;
 use crate::scene::maps::lat_lon;
-use crate::scene::{Body, Pinhole};
+use crate::scene::{Body, EquirectMap, Pinhole};
 
 /// Largest projected size [px] of a leaf cell before it is cut into caps.
 pub const LEAF_CELL_PX: f64 = 12.0;
@@ -143,6 +143,8 @@ pub struct Frame<'a> {
     /// Occulter centre (Lester coordinates, relative to the body centre)
     /// and radius, when its shadow can reach the body.
     pub occulter: Option<(DVec3, f64)>,
+    /// Albedo samples per cap along each axis (1–4).
+    pub texture_samples: usize,
 }
 
 /// Radius of the solar photosphere [m].
@@ -391,8 +393,19 @@ impl Frame<'_> {
                 } else {
                     DVec3::Z
                 };
+                let mut texture = Texture::default();
+                let albedo = match &self.body.albedo_map {
+                    None => self.albedo,
+                    Some(map) => {
+                        // Albedo sampled k×k times over the cap's footprint.
+                        let e1 = (xb * (ct * cp) + yb * (ct * sp) - zb * st) * d_theta;
+                        let e2 = (yb * cp - xb * sp) * (st * d_phi);
+                        texture.sample(map, n_body, e1, e2, self.texture_samples)
+                    }
+                };
                 let integrand = self.integrand(
-                    n_local, n_body, mu0_far, mu_far, cos_a, cam_local, d_cam, d_sun, r, model,
+                    n_local, n_body, albedo, mu0_far, mu_far, cos_a, cam_local, d_cam, d_sun, r,
+                    model,
                 );
                 let pf = r * r * w_theta * w_phi * integrand / omega;
                 if !(pf > 0.0) {
@@ -401,7 +414,11 @@ impl Frame<'_> {
                 total += pf;
                 let quad = [upper[b], upper[b + 1], lower[b + 1], lower[b]];
                 if quad.iter().all(|p| p.0.is_finite()) {
-                    grid_quad(buf, roi, &quad, pf);
+                    if texture.k > 1 {
+                        texture.grid(buf, roi, &quad, pf);
+                    } else {
+                        grid_quad(buf, roi, &quad, pf);
+                    }
                 }
             }
         }
@@ -416,6 +433,7 @@ impl Frame<'_> {
         &self,
         n_local: DVec3,
         n_body: DVec3,
+        albedo: f64,
         mu0_far: f64,
         mu_far: f64,
         cos_a: f64,
@@ -425,10 +443,6 @@ impl Frame<'_> {
         r: f64,
         model: &Reflectance,
     ) -> f64 {
-        let albedo = match &self.body.albedo_map {
-            Some(map) => map.sample_dir(n_body),
-            None => self.albedo,
-        };
         let relief = &self.body.relief;
         if relief.height.is_none() && relief.normals.is_none() {
             let (mu0, mu, cos_g, sun_sq, cam_sq) = if self.distant {
@@ -528,6 +542,105 @@ impl Frame<'_> {
         let area_scale = (r / radius) * (r / radius);
         model.radiance_factor(&g, albedo) * (AU * AU / sun_sq) * projected * area_scale / cam_sq
             * self.sun_fraction(p)
+    }
+}
+
+/// Albedo sub-samples of one cap: k×k values over its footprint, whose mean
+/// is the cap's albedo and whose shares split the cap's PF over the k×k
+/// sub-quadrilaterals of its footprint. The BRDF and geometry are smooth
+/// and evaluated once per cap; only the map varies at pixel scale.
+#[derive(Default)]
+struct Texture {
+    k: usize,
+    values: [f64; 16],
+}
+
+impl Texture {
+    /// Sample the map over the cap centred on the body-fixed unit direction
+    /// `n` with edge vectors `e1` (along θ) and `e2` (along φ); returns the
+    /// mean. Samples smaller than a texel are bilinear; larger ones average
+    /// the texels of a box of their size (summed-area table).
+    #[inline]
+    fn sample(&mut self, map: &EquirectMap, n: DVec3, e1: DVec3, e2: DVec3, k: usize) -> f64 {
+        let k = k.clamp(1, 4);
+        self.k = k;
+        let cos_lat = (n.x * n.x + n.y * n.y).sqrt();
+        let lat = n.z.clamp(-1.0, 1.0).asin();
+        let lon = n.y.atan2(n.x);
+        let (east, north) = if cos_lat > 1e-9 {
+            let (co, so) = (n.x / cos_lat, n.y / cos_lat);
+            (
+                DVec3::new(-so, co, 0.0),
+                DVec3::new(-n.z * co, -n.z * so, cos_lat),
+            )
+        } else {
+            (DVec3::Y, DVec3::X)
+        };
+        // Texel displacements (x east, y south) across the whole cap.
+        let kx = map.width as f64 / (std::f64::consts::TAU * cos_lat.max(1e-6));
+        let ky = map.height as f64 / std::f64::consts::PI;
+        let a1 = (e1.dot(east) * kx, -e1.dot(north) * ky);
+        let a2 = (e2.dot(east) * kx, -e2.dot(north) * ky);
+        let bx = (a1.0.abs() + a2.0.abs()) / k as f64;
+        let by = (a1.1.abs() + a2.1.abs()) / k as f64;
+        let area = (a1.0 * a2.1 - a1.1 * a2.0).abs() / (k * k) as f64;
+        let shrink = if bx * by > 0.0 {
+            (area / (bx * by)).sqrt()
+        } else {
+            1.0
+        };
+        let (sx, sy) = (bx * shrink, by * shrink);
+        let (x0, y0) = map.texel_of(lat, lon);
+        let mut sum = 0.0;
+        for p in 0..k {
+            let v = (p as f64 + 0.5) / k as f64 - 0.5;
+            for q in 0..k {
+                let u = (q as f64 + 0.5) / k as f64 - 0.5;
+                let x = x0 + a1.0 * v + a2.0 * u;
+                let y = y0 + a1.1 * v + a2.1 * u;
+                let value = if sx <= 1.0 && sy <= 1.0 {
+                    map.sample_texel(x, y)
+                } else {
+                    let (la, lo) = map.lat_lon_of(x, y);
+                    map.box_average(
+                        la,
+                        lo,
+                        0.5 * (1.0 + sx * sx).sqrt(),
+                        0.5 * (1.0 + sy * sy).sqrt(),
+                    )
+                };
+                self.values[p * k + q] = value;
+                sum += value;
+            }
+        }
+        sum / (k * k) as f64
+    }
+
+    /// Grid `pf` over the k×k sub-quadrilaterals of `quad` (corners at
+    /// (t0,s0), (t0,s1), (t1,s1), (t1,s0)) in proportion to the samples.
+    #[inline]
+    fn grid(&self, buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], pf: f64) {
+        let k = self.k;
+        let sum: f64 = self.values[..k * k].iter().sum();
+        if !(sum > 0.0) {
+            return;
+        }
+        let at = |v: f64, u: f64| {
+            let w = [(1.0 - v) * (1.0 - u), (1.0 - v) * u, v * u, v * (1.0 - u)];
+            (
+                w[0] * quad[0].0 + w[1] * quad[1].0 + w[2] * quad[2].0 + w[3] * quad[3].0,
+                w[0] * quad[0].1 + w[1] * quad[1].1 + w[2] * quad[2].1 + w[3] * quad[3].1,
+            )
+        };
+        let step = 1.0 / k as f64;
+        for p in 0..k {
+            let (v0, v1) = (p as f64 * step, (p + 1) as f64 * step);
+            for q in 0..k {
+                let (u0, u1) = (q as f64 * step, (q + 1) as f64 * step);
+                let sub = [at(v0, u0), at(v0, u1), at(v1, u1), at(v1, u0)];
+                grid_quad(buf, roi, &sub, pf * self.values[p * k + q] / sum);
+            }
+        }
     }
 }
 

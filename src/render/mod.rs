@@ -41,6 +41,10 @@ pub struct RenderSettings {
     pub geometry: GeometryMode,
     /// Sub-bands for spectrally varying reflectance; omitted: automatic.
     pub sub_bands: Option<usize>,
+    /// Albedo-map samples per cap along each axis (1–4): the map varies at
+    /// pixel scale while the BRDF does not, so each cap's PF is split over
+    /// k×k parts of its footprint by the map alone.
+    pub texture_samples: usize,
 }
 
 /// Default caps per pixel along each axis.
@@ -53,6 +57,7 @@ impl Default for RenderSettings {
             min_caps: 64,
             geometry: GeometryMode::Exact,
             sub_bands: None,
+            texture_samples: 2,
         }
     }
 }
@@ -70,6 +75,9 @@ impl RenderSettings {
         }
         if self.min_caps == 0 || self.min_caps > 100_000 {
             return Err(Error::invalid("render.min_caps", "must be in 1..=100000"));
+        }
+        if !(1..=4).contains(&self.texture_samples) {
+            return Err(Error::invalid("render.texture_samples", "must be in 1..=4"));
         }
         if let Some(n) = self.sub_bands {
             if n == 0 || n > 1000 {
@@ -198,6 +206,7 @@ impl Renderer {
             density: settings.density(),
             min_caps: settings.min_caps as f64,
             distant,
+            texture_samples: settings.texture_samples,
             occulter: state.occulter.and_then(|o| {
                 let rel = o.position - state.body_position;
                 let local = DVec3::new(rel.dot(lune.x), rel.dot(lune.y), rel.dot(lune.z));

@@ -7,6 +7,7 @@
 
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use std::path::Path;
+use std::sync::OnceLock;
 
 use glam::DVec3;
 
@@ -21,6 +22,8 @@ pub struct EquirectMap {
     pub height: usize,
     /// Row-major values, row 0 at the north edge.
     pub data: Vec<f32>,
+    /// Summed-area table, built on first use of [`Self::box_average`].
+    sat: OnceLock<Vec<f64>>,
 }
 
 /// Latitude and longitude [rad] of a body-fixed direction (need not be unit).
@@ -32,6 +35,17 @@ pub fn lat_lon(n: DVec3) -> (f64, f64) {
 }
 
 impl EquirectMap {
+    /// Map from row-major values.
+    pub fn new(width: usize, height: usize, data: Vec<f32>) -> Self {
+        assert_eq!(data.len(), width * height, "map size");
+        Self {
+            width,
+            height,
+            data,
+            sat: OnceLock::new(),
+        }
+    }
+
     /// Read an image file as a single channel: 8/16-bit grey or colour
     /// (colour channels are averaged) normalised to [0, 1], or 32-bit float
     /// TIFF kept as is.
@@ -88,11 +102,7 @@ impl EquirectMap {
                 format!("non-finite value at pixel ({}, {})", k % width, k / width),
             ));
         }
-        Ok(Self {
-            width,
-            height,
-            data,
-        })
+        Ok(Self::new(width, height, data))
     }
 
     /// Smallest and largest value.
@@ -107,6 +117,7 @@ impl EquirectMap {
     /// Map every value linearly so that the map's own range becomes
     /// [lo, hi].
     pub fn stretch(&mut self, lo: f64, hi: f64) {
+        self.sat.take();
         let (a, b) = self.range();
         let span = (b - a) as f64;
         for v in &mut self.data {
@@ -121,6 +132,7 @@ impl EquirectMap {
 
     /// Multiply every value.
     pub fn scale(&mut self, factor: f64) {
+        self.sat.take();
         for v in &mut self.data {
             *v = (*v as f64 * factor) as f32;
         }
@@ -134,18 +146,32 @@ impl EquirectMap {
         (x, y)
     }
 
-    /// Bilinear sample at latitude/longitude [rad]; wraps in longitude,
-    /// clamps in latitude.
+    /// Continuous texel coordinates of lat/lon (integer = texel centre).
     #[inline]
-    pub fn sample(&self, lat: f64, lon: f64) -> f64 {
-        let (x, y) = self.texel(lat, lon);
+    pub fn texel_of(&self, lat: f64, lon: f64) -> (f64, f64) {
+        self.texel(lat, lon)
+    }
+
+    /// Latitude/longitude of continuous texel coordinates.
+    #[inline]
+    pub fn lat_lon_of(&self, x: f64, y: f64) -> (f64, f64) {
+        (
+            FRAC_PI_2 - (y + 0.5) / self.height as f64 * PI,
+            (x + 0.5) / self.width as f64 * TAU - PI,
+        )
+    }
+
+    /// Bilinear sample at continuous texel coordinates (integer = texel
+    /// centre); wraps in x, clamps in y.
+    #[inline]
+    pub fn sample_texel(&self, x: f64, y: f64) -> f64 {
         let y = y.clamp(0.0, (self.height - 1) as f64);
         let x0 = x.floor();
         let y0 = y.floor().min((self.height - 2) as f64);
         let (tx, ty) = (x - x0, y - y0);
         let w = self.width as i64;
         let i0 = (x0 as i64).rem_euclid(w) as usize;
-        let i1 = (i0 + 1) % self.width;
+        let i1 = if i0 + 1 == self.width { 0 } else { i0 + 1 };
         let r0 = y0 as usize * self.width;
         let r1 = r0 + self.width;
         let d = &self.data;
@@ -154,11 +180,83 @@ impl EquirectMap {
         top * (1.0 - ty) + bottom * ty
     }
 
+    /// Bilinear sample at latitude/longitude [rad]; wraps in longitude,
+    /// clamps in latitude.
+    #[inline]
+    pub fn sample(&self, lat: f64, lon: f64) -> f64 {
+        let (x, y) = self.texel(lat, lon);
+        self.sample_texel(x, y)
+    }
+
     /// Bilinear sample along a body-fixed direction.
     #[inline]
     pub fn sample_dir(&self, n: DVec3) -> f64 {
         let (lat, lon) = lat_lon(n);
         self.sample(lat, lon)
+    }
+
+    fn sat(&self) -> &[f64] {
+        self.sat.get_or_init(|| {
+            let (w, h) = (self.width, self.height);
+            let mut sat = vec![0.0f64; (w + 1) * (h + 1)];
+            for j in 0..h {
+                let mut row = 0.0;
+                for i in 0..w {
+                    row += self.data[j * w + i] as f64;
+                    sat[(j + 1) * (w + 1) + i + 1] = sat[j * (w + 1) + i + 1] + row;
+                }
+            }
+            sat
+        })
+    }
+
+    /// ∫ of the texel-constant map over [0, x] × [0, y] (texel units,
+    /// x ∈ [0, W], y ∈ [0, H]): bilinear in the summed-area table, exact.
+    #[inline]
+    fn cumulative(sat: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
+        let x = x.clamp(0.0, w as f64);
+        let y = y.clamp(0.0, h as f64);
+        let i = (x as usize).min(w - 1);
+        let j = (y as usize).min(h - 1);
+        let (fx, fy) = (x - i as f64, y - j as f64);
+        let s = w + 1;
+        let a = sat[j * s + i] * (1.0 - fx) + sat[j * s + i + 1] * fx;
+        let b = sat[(j + 1) * s + i] * (1.0 - fx) + sat[(j + 1) * s + i + 1] * fx;
+        a * (1.0 - fy) + b * fy
+    }
+
+    /// Mean of the map over a box centred at lat/lon with half-sizes in
+    /// texels, each texel taken as constant. A half-size of 0.5 texel
+    /// reproduces bilinear interpolation; callers widen small boxes to that,
+    /// so the mean is continuous from point sampling to area averaging.
+    pub fn box_average(&self, lat: f64, lon: f64, half_x: f64, half_y: f64) -> f64 {
+        let (w, h) = (self.width, self.height);
+        let sat = self.sat();
+        let x = (lon + PI) / TAU * w as f64;
+        let y = (FRAC_PI_2 - lat) / PI * h as f64;
+        let half_x = half_x.min(0.5 * w as f64);
+        let (y0, y1) = ((y - half_y).max(0.0), (y + half_y).min(h as f64));
+        if y1 <= y0 {
+            return self.sample(lat, lon);
+        }
+        let strip = |x0: f64, x1: f64| {
+            Self::cumulative(sat, w, h, x1, y1)
+                - Self::cumulative(sat, w, h, x0, y1)
+                - Self::cumulative(sat, w, h, x1, y0)
+                + Self::cumulative(sat, w, h, x0, y0)
+        };
+        let (mut x0, mut x1) = (x - half_x, x + half_x);
+        let wf = w as f64;
+        if x0 < 0.0 {
+            x0 += wf;
+            x1 += wf;
+        }
+        let total = if x1 > wf {
+            strip(x0, wf) + strip(0.0, x1 - wf)
+        } else {
+            strip(x0, x1)
+        };
+        total / ((x1 - x0) * (y1 - y0))
     }
 
     /// Derivatives of the map [value per radian] with respect to latitude
@@ -183,18 +281,7 @@ impl EquirectMap {
                 d_lat[j * w + i] = (-dy * per_px_lat) as f32;
             }
         }
-        (
-            EquirectMap {
-                width: w,
-                height: h,
-                data: d_lat,
-            },
-            EquirectMap {
-                width: w,
-                height: h,
-                data: d_lon,
-            },
-        )
+        (EquirectMap::new(w, h, d_lat), EquirectMap::new(w, h, d_lon))
     }
 }
 
@@ -215,10 +302,12 @@ impl NormalMap {
             return Err(Error::parse(path, "map must be at least 2x2 pixels"));
         }
         let rgb = img.to_rgb32f();
-        let channel = |c: usize| EquirectMap {
-            width,
-            height,
-            data: rgb.pixels().map(|p| 2.0 * p.0[c] - 1.0).collect(),
+        let channel = |c: usize| {
+            EquirectMap::new(
+                width,
+                height,
+                rgb.pixels().map(|p| 2.0 * p.0[c] - 1.0).collect(),
+            )
         };
         Ok(Self {
             east: channel(0),
@@ -256,11 +345,7 @@ mod tests {
                 data.push(f(lat, lon) as f32);
             }
         }
-        EquirectMap {
-            width,
-            height,
-            data,
-        }
+        EquirectMap::new(width, height, data)
     }
 
     #[test]
@@ -273,6 +358,30 @@ mod tests {
         assert!((v - 10_500.5).abs() < 1e-3, "{v}");
         let v = m.sample_dir(DVec3::new(0.0, 0.0, 1.0));
         assert!(v > 89_000.0, "north pole reads the top row: {v}");
+    }
+
+    #[test]
+    fn box_average_is_the_texel_mean_and_reduces_to_bilinear() {
+        let m = map(16, 8, |lat, lon| 3.0 * lat + lon.sin());
+        // A box covering exactly texels (2..6) x (1..3): their plain mean.
+        let lon = -PI + 4.0 / 16.0 * TAU;
+        let lat = FRAC_PI_2 - 2.0 / 8.0 * PI;
+        let mut mean = 0.0;
+        for j in 1..3 {
+            for i in 2..6 {
+                mean += m.data[j * 16 + i] as f64 / 8.0;
+            }
+        }
+        assert!((m.box_average(lat, lon, 2.0, 1.0) - mean).abs() < 1e-9);
+        // Half-texel boxes equal bilinear interpolation.
+        for (lat, lon) in [(0.3, 1.0), (-0.7, -2.9), (0.1, 3.1)] {
+            let a = m.box_average(lat, lon, 0.5, 0.5);
+            assert!(
+                (a - m.sample(lat, lon)).abs() < 1e-6,
+                "{a} {}",
+                m.sample(lat, lon)
+            );
+        }
     }
 
     #[test]
