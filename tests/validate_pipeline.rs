@@ -10,9 +10,9 @@ const IMG2: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/data/amie/AMI_EE3_04102
 fn run(img: &str, model: &str) -> ValidationReport {
     let r = compare::validate_amie(img, model, &ValidationOptions::new(DATA)).unwrap();
     println!(
-        "{} {model}: shift ({:.2}, {:.2}) px, l {:.5} c {:.5} s {:.5} ssim {:.5}; unnormalised l {:.5} ssim {:.5}; real/render {:.4}; ncc {:.4}",
+        "{} {model}: shift ({:.2}, {:.2}) px, l {:.5} c {:.5} s {:.5} ssim {:.5}; unnormalised l {:.5} ssim {:.5}; real/render {:.4}; ncc {:.4}; no-floor l {:.5} c {:.5} s {:.5}",
         r.product_id, r.alignment.dx, r.alignment.dy, r.ssim.luminance, r.ssim.contrast, r.ssim.structure, r.ssim.mssim,
-        r.ssim_unnormalised.luminance, r.ssim_unnormalised.mssim, r.total_signal_ratio, r.alignment.peak_ncc
+        r.ssim_unnormalised.luminance, r.ssim_unnormalised.mssim, r.total_signal_ratio, r.alignment.peak_ncc, r.ssim_without_noise_floor.luminance, r.ssim_without_noise_floor.contrast, r.ssim_without_noise_floor.structure
     );
     r
 }

@@ -6,15 +6,17 @@
 //!    with the chosen reflection model and the LROC albedo map, and during a
 //!    lunar eclipse the Earth as an occulter) and render it with
 //!    [`render_scene`];
-//! 3. the render in DN as floats before quantisation: electrons (clipped at
-//!    the full well) × gain (1/280 DN per e⁻), clipped at 1023 DN;
+//! 3. the render in DN as floats before quantisation: electrons × gain
+//!    (1/280 DN per e⁻), not clipped (see [`RENDER_FULL_WELL_E`]);
 //! 4. align the render to the real image by NCC ([`super::align`]), in two
-//!    passes: against a provisional background-free image (disk widened by
-//!    [`DISK_MARGIN_PX`]), then, with the background fitted around the
-//!    aligned disk, again; the render is shifted (bilinear), the real image
-//!    is never resampled;
+//!    passes over a window around the disk: ±[`MAX_SHIFT_PX`] against a
+//!    provisional background-free image (disk widened by [`DISK_MARGIN_PX`]),
+//!    then, with the background fitted around the aligned disk, ±[`REFINE_PX`]
+//!    about that; the render is shifted (bilinear), the real image is never
+//!    resampled;
 //! 5. background removal of the real image ([`super::background`], the
-//!    one AMIE tuning);
+//!    one AMIE tuning), then the noise floor: pixels below
+//!    [`NOISE_FLOOR_SIGMA`] × the sky's robust σ are set to 0;
 //! 6. total-signal ratio real/render over the disk plus
 //!    [`SIGNAL_MARGIN_PX`] (sky excluded: its clipped noise would bias it);
 //! 7. SSIM with the 10-bit range L = 1023 of the background-free real image
@@ -47,14 +49,28 @@ pub const BAND_M: [f64; 2] = [400e-9, 1000e-9];
 /// Range the LROC WAC colour mosaic is stretched to, as the model's albedo
 /// parameter (Oren–Nayar and Lambert "albedo"). The paper's value.
 pub const ALBEDO_RANGE: (f64, f64) = (0.16, 0.40);
-/// Full well [e⁻]: 1023 DN × 280 e⁻/DN (the ADC saturates first).
+/// AMIE saturation [e⁻]: 1023 DN × 280 e⁻/DN (the ADC saturates first).
 pub const FULL_WELL_E: f64 = 286_440.0;
+/// Full well given to the renderer: effectively none. AMIE has no absolute
+/// calibration and the render's absolute level is uncertain by a factor of
+/// a few (assumed response, albedo scale), so clipping it at the AMIE
+/// saturation would cut the render and not the real image; the render is
+/// compared unclipped and the pixels above [`FULL_WELL_E`] are counted
+/// ([`ValidationReport::render_pixels_above_saturation`]).
+pub const RENDER_FULL_WELL_E: f64 = 1e15;
 /// The Earth's shadow is enlarged by its atmosphere by ~2 % (Chauvenet's
 /// classical 1/50; Danjon's 1/85 of the parallax is similar): modelled by an
 /// occulter of radius 1.02 × the equatorial radius.
 pub const EARTH_SHADOW_ENLARGEMENT: f64 = 1.02;
 /// Half-width of the NCC search [px]: the label pose is good to ~10 px.
 pub const MAX_SHIFT_PX: usize = 30;
+/// Noise floor: after the background subtraction, real pixels below this
+/// many robust σ of the sky are set to 0 (the paper's "removal of background
+/// noise", which the model does not contain). 3σ keeps < 0.2 % of pure-noise
+/// pixels.
+pub const NOISE_FLOOR_SIGMA: f64 = 3.0;
+/// Half-width of the second, refining NCC search about the first [px].
+pub const REFINE_PX: usize = 3;
 /// Margin added to the predicted disk for the provisional background fit [px].
 pub const DISK_MARGIN_PX: f64 = 12.0;
 /// Pixels within this distance outside the aligned limb count in the total
@@ -221,6 +237,9 @@ pub struct ValidationReport {
     pub geometry: GeometryCheck,
     pub eclipse: Option<EclipseReport>,
     pub render: Summary,
+    /// Render pixels at or above the AMIE saturation (1023 DN) before the
+    /// scaling to the real total signal (the render is not clipped).
+    pub render_pixels_above_saturation: usize,
     /// "what the render is compared as" in words.
     pub render_product: String,
     pub background_method: String,
@@ -244,6 +263,11 @@ pub struct ValidationReport {
     /// SSIM against the unscaled render (its luminance term is the
     /// absolute-level comparison).
     pub ssim_unnormalised: SsimScores,
+    /// SSIM (render scaled) against the background-subtracted real image
+    /// without the noise floor (sky noise left in, clipped at 0).
+    pub ssim_without_noise_floor: SsimScores,
+    /// Real pixels below this were set to 0 [DN].
+    pub noise_floor_dn: f64,
 }
 
 /// A validation with its images (for the figure).
@@ -338,7 +362,7 @@ pub fn build_scene(
         focal_length: c.focal_length_m,
         f_number: c.f_number,
         exposure: c.exposure_s,
-        full_well: FULL_WELL_E,
+        full_well: RENDER_FULL_WELL_E,
         bits: c.bits,
         gain: 1.0 / c.gain_e_per_dn,
         band: BAND_M,
@@ -387,6 +411,49 @@ pub fn build_scene(
     })
 }
 
+/// Box (x0, y0, x1, y1) around the predicted disk with room for the
+/// search: only this part enters the NCC (the rest is sky).
+fn crop_window(disk: &Disk, w: usize, h: usize) -> (usize, usize, usize, usize) {
+    let half = disk.radius + DISK_MARGIN_PX + MAX_SHIFT_PX as f64;
+    let clamp = |v: f64, hi: usize| (v.max(0.0) as usize).min(hi);
+    (
+        clamp(disk.cx - half, w),
+        clamp(disk.cy - half, h),
+        clamp(disk.cx + half, w),
+        clamp(disk.cy + half, h),
+    )
+}
+
+fn crop(img: &Raster, (x0, y0, x1, y1): (usize, usize, usize, usize), shift: (i32, i32)) -> Raster {
+    // `out(x, y) = img(x − sx, y − sy)` inside the window, 0 outside the image.
+    Raster::from_fn(x1 - x0, y1 - y0, |c, r| {
+        let (x, y) = ((x0 + c) as i64 - shift.0 as i64, (y0 + r) as i64 - shift.1 as i64);
+        if x < 0 || y < 0 || x >= img.width as i64 || y >= img.height as i64 {
+            0.0
+        } else {
+            img.get(x as usize, y as usize)
+        }
+    })
+}
+
+/// NCC shift of `real` relative to `render` within `window`, searched
+/// ±`max_shift` px about the integer shift `about`.
+fn align_in(
+    render: &Raster,
+    real: &Raster,
+    window: (usize, usize, usize, usize),
+    about: (i32, i32),
+    max_shift: usize,
+) -> Result<Alignment> {
+    let a = ncc_align(&crop(render, window, about), &crop(real, window, (0, 0)), max_shift)?;
+    Ok(Alignment {
+        dx: a.dx + about.0 as f64,
+        dy: a.dy + about.1 as f64,
+        integer_shift: (a.integer_shift.0 + about.0, a.integer_shift.1 + about.1),
+        ..a
+    })
+}
+
 fn sum_within(img: &Raster, disk: &Disk, margin: f64) -> f64 {
     let mut s = 0.0;
     for r in 0..img.height {
@@ -415,8 +482,9 @@ pub fn run(img_path: impl AsRef<Path>, model: &str, options: &ValidationOptions)
     let render = Raster::new(
         pin.width,
         pin.height,
-        images.electrons.iter().map(|&e| (e * gain).min(max_dn)).collect(),
+        images.electrons.iter().map(|&e| e * gain).collect(),
     )?;
+    let above = render.data.iter().filter(|&&v| v >= max_dn).count();
 
     // Pass 1: provisional background with a widened predicted disk, align.
     let (centre, radius) = obs
@@ -434,15 +502,23 @@ pub fn run(img_path: impl AsRef<Path>, model: &str, options: &ValidationOptions)
         ..predicted
     };
     let (clean0, _) = remove_background(&obs.image, wide, &params)?;
-    let a0 = ncc_align(&render, &clean0, MAX_SHIFT_PX)?;
-    // Pass 2: background around the aligned disk, align again.
+    let window = crop_window(&predicted, render.width, render.height);
+    let a0 = align_in(&render, &clean0, window, (0, 0), MAX_SHIFT_PX)?;
+    // Pass 2: background around the aligned disk, align again (±REFINE px
+    // about the integer shift of pass 1).
     let disk1 = Disk {
         cx: predicted.cx + a0.dx,
         cy: predicted.cy + a0.dy,
         ..predicted
     };
-    let (real, bg) = remove_background(&obs.image, disk1, &params)?;
-    let align = ncc_align(&render, &real, MAX_SHIFT_PX)?;
+    let (subtracted, bg) = remove_background(&obs.image, disk1, &params)?;
+    let floor = (NOISE_FLOOR_SIGMA * bg.sky_sigma_dn) as f32;
+    let real = Raster::new(
+        subtracted.width,
+        subtracted.height,
+        subtracted.data.iter().map(|&v| if v < floor { 0.0 } else { v }).collect(),
+    )?;
+    let align = align_in(&render, &real, window, a0.integer_shift, REFINE_PX)?;
     let aligned_disk = Disk {
         cx: predicted.cx + align.dx,
         cy: predicted.cy + align.dy,
@@ -463,6 +539,7 @@ pub fn run(img_path: impl AsRef<Path>, model: &str, options: &ValidationOptions)
     )?;
     let s_norm = ssim(&real, &scaled, AMIE_DATA_RANGE)?;
     let s_raw = ssim(&real, &shifted, AMIE_DATA_RANGE)?;
+    let s_no_floor = ssim(&subtracted, &scaled, AMIE_DATA_RANGE)?;
 
     let geometry = obs.scene.geometry_check();
     let phase_derived = geometry.phase_at_boresight_deg.unwrap_or(geometry.phase_at_centre_deg);
@@ -491,9 +568,10 @@ pub fn run(img_path: impl AsRef<Path>, model: &str, options: &ValidationOptions)
         geometry,
         eclipse: ecl,
         render: images.summary.clone(),
-        render_product: "float DN before quantisation: electrons (clipped at the full well) x gain, clipped at 1023".into(),
+        render_pixels_above_saturation: above,
+        render_product: "float DN before quantisation and without saturation: electrons x gain (1/280 DN per e-)".into(),
         background_method: "background::remove_background with BackgroundParams::amie() (kappa-sigma-clipped quadratic sky + limb halo rings), \
-                            fitted around the NCC-aligned disk"
+                            fitted around the NCC-aligned disk; then pixels below 3 sky sigma set to 0 (noise floor)"
             .into(),
         background_params: params,
         background: bg,
@@ -507,6 +585,8 @@ pub fn run(img_path: impl AsRef<Path>, model: &str, options: &ValidationOptions)
         ssim_data_range: AMIE_DATA_RANGE,
         ssim: SsimScores::from(&s_norm),
         ssim_unnormalised: SsimScores::from(&s_raw),
+        ssim_without_noise_floor: SsimScores::from(&s_no_floor),
+        noise_floor_dn: floor as f64,
     };
     Ok(ValidationRun {
         report,
