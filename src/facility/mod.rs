@@ -1,1 +1,29 @@
 //! Facility driver: states in, display LUT, screen, serial sync, frame log.
+//!
+//! | module | owns |
+//! |---|---|
+//! | [`trajectory`] | the [`State`](trajectory::State) type and open-loop CSV trajectories |
+//! | [`udp`] | closed-loop states over UDP (newest wins, stale/malformed counted) |
+//! | [`lut`] | display radiance LUT (PCHIP, inverse, SHA-256) and flat field |
+//! | [`dither`] | target radiance → drive levels in the body's ROI (k, τ, flat field, dithering) |
+//! | [`frame_id`] | frame number drawn as a binary block in a corner, and its decoder |
+//! | [`display`] | the [`Display`](display::Display) trait, simulated and full-screen X11 displays |
+//! | [`serial`] | per-frame sync command over a serial port that never blocks the loop |
+//! | [`log`] | write-through JSON-lines frame log and run summary |
+//! | [`config`] | the facility TOML file |
+//!
+//! Per frame, the loop is expected to: take a state ([`udp`] or
+//! [`trajectory`]), render the body's ROI, [`dither::Converter::convert`] it
+//! into the frame buffer, draw the [`frame_id`] block (after the conversion,
+//! which may clear the previous ROI), `present` it, send the sync line, and
+//! write the [`log`] record.
+
+pub mod config;
+pub mod dither;
+pub mod display;
+pub mod frame_id;
+pub mod log;
+pub mod lut;
+pub mod serial;
+pub mod trajectory;
+pub mod udp;

@@ -358,7 +358,11 @@ impl Frame<'_> {
                 continue;
             }
             let d_phi = ds * (hi - lo);
-            let w_theta = closed_form::theta_weight(self.weight, theta, d_theta);
+            let (theta0, theta1) = (theta - 0.5 * d_theta, theta + 0.5 * d_theta);
+            let w_theta = match self.weight {
+                Weight::Mu0Mu => closed_form::int_sin3(theta0, theta1),
+                Weight::Mu | Weight::LommelSeeliger => closed_form::int_sin2(theta0, theta1),
+            };
             let phi_start = lo + (cell.s0 + 0.5 * ds) * (hi - lo);
             let (mut sp, mut cp) = phi_start.sin_cos();
             let (sd, cd) = d_phi.sin_cos();
@@ -379,8 +383,12 @@ impl Frame<'_> {
                     }
                     Weight::Mu => 2.0 * cos_pa * half_sin,
                     Weight::LommelSeeliger => {
-                        let phi = sp.atan2(cp);
-                        closed_form::ls_phi_weight(phi - 0.5 * d_phi, phi + 0.5 * d_phi, alpha)
+                        let phi = phi_start + b as f64 * d_phi;
+                        closed_form::phi_mu0_mu_over_sum(
+                            phi - 0.5 * d_phi,
+                            phi + 0.5 * d_phi,
+                            alpha,
+                        )
                     }
                 };
                 let omega = self.weight.at(mu0_far, mu_far);
@@ -687,6 +695,43 @@ impl Polygon {
     }
 }
 
+/// Twice the signed area of the part of a convex polygon with coordinate
+/// `axis` ≤ `at`, accumulated edge by edge without building the clipped
+/// polygon.
+#[inline]
+fn half_plane_area2(v: &[(f64, f64)], axis: usize, at: f64) -> f64 {
+    let coord = |p: (f64, f64)| if axis == 0 { p.0 } else { p.1 };
+    let cross = |p: (f64, f64), q: (f64, f64)| p.0 * q.1 - q.0 * p.1;
+    let lerp = |p: (f64, f64), q: (f64, f64)| {
+        let t = (at - coord(p)) / (coord(q) - coord(p));
+        (p.0 + t * (q.0 - p.0), p.1 + t * (q.1 - p.1))
+    };
+    let mut acc = 0.0;
+    let (mut exit, mut enter) = (None, None);
+    let n = v.len();
+    for k in 0..n {
+        let (p, q) = (v[k], v[(k + 1) % n]);
+        match (coord(p) <= at, coord(q) <= at) {
+            (true, true) => acc += cross(p, q),
+            (true, false) => {
+                let i = lerp(p, q);
+                acc += cross(p, i);
+                exit = Some(i);
+            }
+            (false, true) => {
+                let i = lerp(p, q);
+                acc += cross(i, q);
+                enter = Some(i);
+            }
+            (false, false) => {}
+        }
+    }
+    if let (Some(a), Some(b)) = (exit, enter) {
+        acc += cross(a, b);
+    }
+    acc
+}
+
 #[inline]
 fn add(buf: &mut [f32], roi: &Rect, i: i64, j: i64, value: f64) {
     if i >= roi.x0 as i64 && i < roi.x1 as i64 && j >= roi.y0 as i64 && j < roi.y1 as i64 {
@@ -732,18 +777,29 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
         // At most 2×2 pixels: inclusion–exclusion on one vertical and one
         // horizontal grid line.
         let (xs, ys) = ((i0 + 1) as f64, (j0 + 1) as f64);
-        let left = if i1 > i0 {
-            poly.clip(0, xs, true)
+        let sign = if half_plane_area2(quad, 0, f64::INFINITY) < 0.0 {
+            -0.5
         } else {
-            poly
+            0.5
         };
-        let a_left = left.area();
+        let a_left = if i1 > i0 {
+            sign * half_plane_area2(quad, 0, xs)
+        } else {
+            area
+        };
         let (a_top, a_left_top) = if j1 > j0 {
-            (poly.clip(1, ys, true).area(), left.clip(1, ys, true).area())
+            let top = sign * half_plane_area2(quad, 1, ys);
+            let left_top = if i1 > i0 {
+                let left = poly.clip(0, xs, true);
+                sign * half_plane_area2(&left.v[..left.n], 1, ys)
+            } else {
+                top
+            };
+            (top, left_top)
         } else {
             (area, a_left)
         };
-        add(buf, roi, i0, j0, a_left_top * per_area);
+        add(buf, roi, i0, j0, a_left_top.max(0.0) * per_area);
         if i1 > i0 {
             add(buf, roi, i1, j0, (a_top - a_left_top).max(0.0) * per_area);
         }
@@ -785,6 +841,28 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn inline_cap_weights_equal_the_closed_forms() {
+        // The per-cap loop evaluates the φ factors from the cap centre's
+        // sin/cos; they must equal closed_form's cap integrals.
+        for &(alpha, p0, d) in &[(0.3f64, -1.0f64, 0.01f64), (1.7, 0.2, 0.3), (2.9, 1.3, 0.2)] {
+            let (sa, ca) = alpha.sin_cos();
+            let pc = p0 + 0.5 * d;
+            let (sp, cp) = pc.sin_cos();
+            let cos_2pa = (cp * cp - sp * sp) * ca + 2.0 * sp * cp * sa;
+            let mu0mu = 0.5 * (d * ca + cos_2pa * d.sin());
+            let cos_pa = cp * ca + sp * sa;
+            let mu = 2.0 * cos_pa * (0.5 * d).sin();
+            let (t0, t1) = (0.4, 0.9);
+            let s3 = closed_form::int_sin3(t0, t1);
+            let s2 = closed_form::int_sin2(t0, t1);
+            let a = closed_form::cap_mu0_mu(t0, t1, p0, p0 + d, alpha);
+            let b = closed_form::cap_mu(t0, t1, p0, p0 + d, alpha);
+            assert!((s3 * mu0mu - a).abs() <= 1e-12 * a.abs(), "{} {a}", s3 * mu0mu);
+            assert!((s2 * mu - b).abs() <= 1e-12 * b.abs(), "{} {b}", s2 * mu);
+        }
+    }
 
     #[test]
     fn sun_fraction_limits_and_partial_overlap() {

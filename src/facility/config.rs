@@ -1,0 +1,567 @@
+//! Facility configuration: the TOML file describing screen, collimator,
+//! alignment, calibration files, drive (scale, dithering), frame-id block,
+//! serial sync and timing.
+//!
+//! ```toml
+//! [screen]
+//! resolution = [1920, 1080]   # pixels
+//! pixel_pitch = 2.7e-4        # m
+//! monitor = 0                 # X screen number
+//! refresh_hz = 60.0
+//!
+//! [collimator]
+//! focal_length = 0.5          # m
+//! transmission = 0.85         # (0, 1]
+//!
+//! [alignment]
+//! offset_px = [0.0, 0.0]      # screen position of the optical axis minus the screen centre
+//! rotation = 0.0              # rad, image rotation on the screen
+//!
+//! [calibration]
+//! lut = "example_lut.csv"     # relative to this file's directory
+//! # flat_field = "flat.tif"   # optional, Gray32Float of the screen size
+//!
+//! [drive]
+//! scale_k = 1.0               # or: flight_exposure = .., facility_exposure = .. (s), k = flight/facility
+//! dither = "bayer"            # or "blue_noise"
+//! temporal = true
+//! seed = 1
+//! bits = 8                    # 8 or 10
+//!
+//! [frame_id]                  # optional section; defaults shown
+//! enabled = true
+//! corner = "top_left"         # top_left | top_right | bottom_left | bottom_right
+//! bits = 24
+//! cell_px = 4
+//!
+//! [sync]                      # optional section
+//! port = "/dev/ttyUSB0"       # optional: no port, no sync
+//! template = "FRAME {id} {t} {exposure_us}\n"
+//! ack = true
+//! ack_timeout = 0.05          # s
+//! baud = 115200
+//!
+//! [timing]
+//! state_timeout = 0.5         # s
+//! ```
+//!
+//! Unknown keys are errors. Parse errors name the file, line and key;
+//! validation errors name the file and the field (`section.key`).
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::error::{Error, Result};
+
+use super::dither::DitherKind;
+use super::frame_id::Corner;
+
+/// Whole facility configuration.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FacilityConfig {
+    /// Display.
+    pub screen: ScreenConfig,
+    /// Collimator optics.
+    pub collimator: CollimatorConfig,
+    /// Image placement on the screen.
+    #[serde(default)]
+    pub alignment: AlignmentConfig,
+    /// Calibration files.
+    pub calibration: CalibrationConfig,
+    /// Radiance → drive level conversion.
+    pub drive: DriveConfig,
+    /// Frame-id block.
+    #[serde(default)]
+    pub frame_id: FrameIdConfig,
+    /// Serial sync.
+    #[serde(default)]
+    pub sync: SyncConfig,
+    /// Timing.
+    #[serde(default)]
+    pub timing: TimingConfig,
+}
+
+/// `[screen]`
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScreenConfig {
+    /// `[width, height]` in pixels.
+    pub resolution: [usize; 2],
+    /// Pixel pitch, m.
+    pub pixel_pitch: f64,
+    /// X screen number.
+    #[serde(default)]
+    pub monitor: usize,
+    /// Refresh rate, Hz.
+    pub refresh_hz: f64,
+}
+
+/// `[collimator]`
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollimatorConfig {
+    /// Focal length, m.
+    pub focal_length: f64,
+    /// Transmission in (0, 1].
+    pub transmission: f64,
+}
+
+/// `[alignment]`
+#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct AlignmentConfig {
+    /// Offset of the optical axis from the screen centre, pixels.
+    #[serde(default)]
+    pub offset_px: [f64; 2],
+    /// Image rotation, rad.
+    #[serde(default)]
+    pub rotation: f64,
+}
+
+/// `[calibration]`
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationConfig {
+    /// LUT CSV (resolved against the config directory after loading).
+    pub lut: PathBuf,
+    /// Flat-field TIFF.
+    #[serde(default)]
+    pub flat_field: Option<PathBuf>,
+}
+
+/// `[drive]`
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DriveConfig {
+    /// Facility scale factor k.
+    #[serde(default)]
+    pub scale_k: Option<f64>,
+    /// Flight exposure, s (with `facility_exposure`: k = flight/facility).
+    #[serde(default)]
+    pub flight_exposure: Option<f64>,
+    /// Facility camera exposure, s.
+    #[serde(default)]
+    pub facility_exposure: Option<f64>,
+    /// Threshold matrix.
+    #[serde(default)]
+    pub dither: DitherKind,
+    /// Per-frame matrix offset.
+    #[serde(default)]
+    pub temporal: bool,
+    /// Seed.
+    #[serde(default)]
+    pub seed: u64,
+    /// Bits per channel (8 or 10).
+    #[serde(default = "default_bits")]
+    pub bits: u32,
+}
+
+fn default_bits() -> u32 {
+    8
+}
+
+impl DriveConfig {
+    /// The effective k (validated configs only).
+    pub fn k(&self) -> Result<f64> {
+        match (self.scale_k, self.flight_exposure, self.facility_exposure) {
+            (Some(k), None, None) => Ok(k),
+            (None, Some(f), Some(s)) => Ok(f / s),
+            (Some(_), _, _) => Err(Error::invalid(
+                "drive.scale_k",
+                "give either scale_k or flight_exposure and facility_exposure, not both",
+            )),
+            _ => Err(Error::invalid(
+                "drive.scale_k",
+                "missing: give scale_k, or both flight_exposure and facility_exposure",
+            )),
+        }
+    }
+}
+
+/// `[frame_id]`
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameIdConfig {
+    /// Draw the block.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Corner.
+    #[serde(default)]
+    pub corner: Corner,
+    /// Data bits (8 … 32).
+    #[serde(default = "default_id_bits")]
+    pub bits: u32,
+    /// Cell side, pixels.
+    #[serde(default = "default_cell")]
+    pub cell_px: usize,
+}
+
+fn yes() -> bool {
+    true
+}
+fn default_id_bits() -> u32 {
+    24
+}
+fn default_cell() -> usize {
+    4
+}
+
+impl Default for FrameIdConfig {
+    fn default() -> Self {
+        FrameIdConfig {
+            enabled: true,
+            corner: Corner::default(),
+            bits: default_id_bits(),
+            cell_px: default_cell(),
+        }
+    }
+}
+
+/// `[sync]`
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SyncConfig {
+    /// Serial device path; `None` = no sync hardware.
+    #[serde(default)]
+    pub port: Option<PathBuf>,
+    /// Command template (see [`serial`](super::serial)).
+    #[serde(default = "default_template")]
+    pub template: String,
+    /// Wait for an acknowledgement line.
+    #[serde(default)]
+    pub ack: bool,
+    /// Ack timeout, s.
+    #[serde(default = "default_ack_timeout")]
+    pub ack_timeout: f64,
+    /// Baud rate.
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+}
+
+fn default_template() -> String {
+    "FRAME {id} {t} {exposure_us}\n".into()
+}
+fn default_ack_timeout() -> f64 {
+    0.05
+}
+fn default_baud() -> u32 {
+    115_200
+}
+
+impl Default for SyncConfig {
+    fn default() -> Self {
+        SyncConfig {
+            port: None,
+            template: default_template(),
+            ack: false,
+            ack_timeout: default_ack_timeout(),
+            baud: default_baud(),
+        }
+    }
+}
+
+/// `[timing]`
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimingConfig {
+    /// A state older than this is not rendered again, s.
+    #[serde(default = "default_state_timeout")]
+    pub state_timeout: f64,
+}
+
+fn default_state_timeout() -> f64 {
+    0.5
+}
+
+impl Default for TimingConfig {
+    fn default() -> Self {
+        TimingConfig {
+            state_timeout: default_state_timeout(),
+        }
+    }
+}
+
+fn positive(field: &str, v: f64) -> Result<()> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            field,
+            format!("must be finite and > 0, found {v}"),
+        ))
+    }
+}
+
+impl FacilityConfig {
+    /// Reads, parses, resolves relative paths against the file's directory
+    /// and validates.
+    pub fn load(path: impl AsRef<Path>) -> Result<FacilityConfig> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let mut cfg = FacilityConfig::parse(&text, path)?;
+        let dir = path.parent().unwrap_or(Path::new(""));
+        cfg.resolve_paths(dir);
+        Ok(cfg)
+    }
+
+    /// Parses and validates TOML text (paths left as written); `path` names
+    /// the file in errors.
+    pub fn parse(text: &str, path: impl AsRef<Path>) -> Result<FacilityConfig> {
+        let path = path.as_ref();
+        let cfg: FacilityConfig =
+            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+        cfg.validate()
+            .map_err(|e| Error::parse(path, e.to_string()))?;
+        Ok(cfg)
+    }
+
+    /// Makes relative calibration paths relative to `dir`.
+    pub fn resolve_paths(&mut self, dir: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = dir.join(&*p);
+            }
+        };
+        fix(&mut self.calibration.lut);
+        if let Some(f) = &mut self.calibration.flat_field {
+            fix(f);
+        }
+    }
+
+    /// Checks every value's domain; errors name the field.
+    pub fn validate(&self) -> Result<()> {
+        let s = &self.screen;
+        if s.resolution[0] == 0 || s.resolution[1] == 0 {
+            return Err(Error::invalid("screen.resolution", "must be non-zero"));
+        }
+        positive("screen.pixel_pitch", s.pixel_pitch)?;
+        positive("screen.refresh_hz", s.refresh_hz)?;
+        positive("collimator.focal_length", self.collimator.focal_length)?;
+        let t = self.collimator.transmission;
+        if !(t.is_finite() && t > 0.0 && t <= 1.0) {
+            return Err(Error::invalid(
+                "collimator.transmission",
+                format!("must be in (0, 1], found {t}"),
+            ));
+        }
+        let a = &self.alignment;
+        if !(a.offset_px.iter().all(|v| v.is_finite())) {
+            return Err(Error::invalid("alignment.offset_px", "must be finite"));
+        }
+        if !a.rotation.is_finite() {
+            return Err(Error::invalid("alignment.rotation", "must be finite"));
+        }
+        let d = &self.drive;
+        if let Some(k) = d.scale_k {
+            positive("drive.scale_k", k)?;
+        }
+        if let Some(v) = d.flight_exposure {
+            positive("drive.flight_exposure", v)?;
+        }
+        if let Some(v) = d.facility_exposure {
+            positive("drive.facility_exposure", v)?;
+        }
+        if d.scale_k.is_none() && (d.flight_exposure.is_some() != d.facility_exposure.is_some()) {
+            let missing = if d.flight_exposure.is_none() {
+                "drive.flight_exposure"
+            } else {
+                "drive.facility_exposure"
+            };
+            return Err(Error::invalid(
+                missing,
+                "missing: both exposures are needed to derive k",
+            ));
+        }
+        d.k()?;
+        if d.bits != 8 && d.bits != 10 {
+            return Err(Error::invalid(
+                "drive.bits",
+                format!("must be 8 or 10, found {}", d.bits),
+            ));
+        }
+        let f = &self.frame_id;
+        if !(8..=32).contains(&f.bits) {
+            return Err(Error::invalid(
+                "frame_id.bits",
+                format!("must be 8 … 32, found {}", f.bits),
+            ));
+        }
+        if f.cell_px == 0 {
+            return Err(Error::invalid("frame_id.cell_px", "must be ≥ 1"));
+        }
+        if f.enabled {
+            let (w, h) = super::frame_id::FrameIdCode::block_size_for(f.bits, f.cell_px);
+            if w > s.resolution[0] || h > s.resolution[1] {
+                return Err(Error::invalid(
+                    "frame_id.cell_px",
+                    format!("the {w}×{h} block does not fit on the screen"),
+                ));
+            }
+        }
+        let y = &self.sync;
+        super::serial::CommandTemplate::parse(&y.template)
+            .map_err(|e| Error::invalid("sync.template", e.to_string()))?;
+        positive("sync.ack_timeout", y.ack_timeout)?;
+        if y.baud == 0 {
+            return Err(Error::invalid("sync.baud", "must be > 0"));
+        }
+        positive("timing.state_timeout", self.timing.state_timeout)?;
+        Ok(())
+    }
+
+    /// Screen size `(width, height)`.
+    pub fn screen_size(&self) -> (usize, usize) {
+        (self.screen.resolution[0], self.screen.resolution[1])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+[screen]
+resolution = [1920, 1080]
+pixel_pitch = 2.7e-4
+monitor = 0
+refresh_hz = 60.0
+
+[collimator]
+focal_length = 0.5
+transmission = 0.85
+
+[alignment]
+offset_px = [1.5, -2.0]
+rotation = 0.001
+
+[calibration]
+lut = "lut.csv"
+flat_field = "/abs/flat.tif"
+
+[drive]
+flight_exposure = 0.01
+facility_exposure = 0.04
+dither = "blue_noise"
+temporal = true
+seed = 3
+bits = 8
+
+[frame_id]
+enabled = true
+corner = "bottom_right"
+bits = 16
+cell_px = 3
+
+[sync]
+template = "FRAME {id} {t} {exposure_us}\n"
+ack = true
+ack_timeout = 0.02
+baud = 9600
+
+[timing]
+state_timeout = 0.25
+"#;
+
+    #[test]
+    fn loads_resolves_paths_and_derives_k() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("facility.toml");
+        std::fs::write(&p, GOOD).unwrap();
+        let c = FacilityConfig::load(&p).unwrap();
+        assert_eq!(c.calibration.lut, dir.path().join("lut.csv"));
+        assert_eq!(
+            c.calibration.flat_field.as_deref(),
+            Some(Path::new("/abs/flat.tif"))
+        );
+        assert_eq!(c.drive.k().unwrap(), 0.01 / 0.04);
+        assert_eq!(c.drive.dither, DitherKind::BlueNoise);
+        assert_eq!(c.frame_id.corner, Corner::BottomRight);
+        assert_eq!(c.sync.template, "FRAME {id} {t} {exposure_us}\n");
+        assert_eq!(c.screen_size(), (1920, 1080));
+        assert_eq!(c.timing.state_timeout, 0.25);
+    }
+
+    #[test]
+    fn errors_name_file_and_key() {
+        let e = |text: String| {
+            FacilityConfig::parse(&text, "cfg/f.toml")
+                .unwrap_err()
+                .to_string()
+        };
+        let cases = [
+            (
+                GOOD.replace("rotation = 0.001", "rotation = 0.001\nrotaton = 1"),
+                "rotaton",
+            ),
+            (
+                GOOD.replace("transmission = 0.85", "transmission = 1.5"),
+                "collimator.transmission",
+            ),
+            (
+                GOOD.replace("pixel_pitch = 2.7e-4", "pixel_pitch = -1.0"),
+                "screen.pixel_pitch",
+            ),
+            (
+                GOOD.replace("pixel_pitch = 2.7e-4", "pixel_pitch = nan"),
+                "screen.pixel_pitch",
+            ),
+            (
+                GOOD.replace("facility_exposure = 0.04\n", ""),
+                "drive.facility_exposure",
+            ),
+            (
+                GOOD.replace(
+                    "flight_exposure = 0.01",
+                    "scale_k = 2.0\nflight_exposure = 0.01",
+                ),
+                "drive.scale_k",
+            ),
+            (GOOD.replace("bits = 8", "bits = 12"), "drive.bits"),
+            (
+                GOOD.replace("dither = \"blue_noise\"", "dither = \"floyd\""),
+                "dither",
+            ),
+            (GOOD.replace("bits = 16", "bits = 40"), "frame_id.bits"),
+            (GOOD.replace("{exposure_us}", "{exposure}"), "sync.template"),
+            (
+                GOOD.replace("state_timeout = 0.25", "state_timeout = 0"),
+                "timing.state_timeout",
+            ),
+            (GOOD.replace("lut = \"lut.csv\"\n", ""), "lut"),
+            (
+                GOOD.replace("resolution = [1920, 1080]", "resolution = [8, 8]"),
+                "frame_id.cell_px",
+            ),
+        ];
+        for (text, key) in cases {
+            let m = e(text);
+            assert!(m.contains("cfg/f.toml") && m.contains(key), "{key}: {m}");
+        }
+    }
+
+    #[test]
+    fn defaults_for_optional_sections() {
+        let text = r#"
+[screen]
+resolution = [640, 480]
+pixel_pitch = 1e-4
+refresh_hz = 60
+[collimator]
+focal_length = 0.3
+transmission = 1.0
+[calibration]
+lut = "l.csv"
+[drive]
+scale_k = 1.0
+"#;
+        let c = FacilityConfig::parse(text, "x.toml").unwrap();
+        assert_eq!(c.drive.bits, 8);
+        assert_eq!(c.drive.dither, DitherKind::Bayer);
+        assert!(c.frame_id.enabled);
+        assert!(c.sync.port.is_none());
+        assert!(!c.sync.ack);
+        assert_eq!(c.alignment.offset_px, [0.0, 0.0]);
+    }
+}

@@ -1,0 +1,337 @@
+//! Frame log: one JSON line per presented frame, written through to disk
+//! before the next frame, and the end-of-run summary.
+//!
+//! # File policy
+//!
+//! The log is opened with `O_APPEND | O_CREAT`: an existing log is never
+//! truncated, a new run is appended after it. Every record carries the
+//! `run` id (wall-clock start of the run, Unix nanoseconds) so runs in one
+//! file can be told apart. Each record is written with one `write_all`, then
+//! flushed and `sync_data`'d, so a crash or power cut loses at most the frame
+//! in flight (whose line may be incomplete; [`read_records`] ignores an
+//! unterminated last line).
+//!
+//! # Times
+//!
+//! All `t_*` fields are seconds since the run start ([`FrameLog::since_start`]);
+//! `state_t` is the state's own time.
+//!
+//! # Summary
+//!
+//! [`FrameLog::summary`]: frames, missed deadlines, dropped states and the
+//! state-received → presented latency p50/p99/max (nearest-rank
+//! percentiles), written as pretty JSON by [`FrameLog::write_summary`]
+//! (atomically: temp file + rename; the summary is derived data and may
+//! replace an older one).
+
+use std::fs::{File, OpenOptions};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// One frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct FrameRecord {
+    /// Run id (set by [`FrameLog::write`]).
+    #[serde(default)]
+    pub run: String,
+    /// Frame id.
+    pub frame: u64,
+    /// Time of the rendered state, s.
+    pub state_t: f64,
+    /// State received (closed loop), s since run start.
+    pub t_state_received: Option<f64>,
+    /// Render start.
+    pub t_render_start: f64,
+    /// Render end.
+    pub t_render_end: f64,
+    /// Radiance → drive-level conversion end.
+    pub t_convert_end: f64,
+    /// Presented (display server has the image).
+    pub t_presented: f64,
+    /// Sync command handed to the port.
+    pub t_sync_sent: Option<f64>,
+    /// Acknowledgement received.
+    pub t_ack: Option<f64>,
+    /// Presentation deadline, s since run start.
+    pub deadline: f64,
+    /// `t_presented > deadline` (set by [`FrameLog::write`]).
+    pub missed: bool,
+    /// Clipped pixels (high + low).
+    pub clipped: u64,
+    /// Peak target radiance, W m⁻² sr⁻¹.
+    pub peak_radiance: f64,
+    /// Facility scale factor k.
+    pub k: f64,
+    /// SHA-256 of the LUT file.
+    pub lut_sha256: String,
+    /// SHA-256 of the flat-field file (if any).
+    pub calibration_sha256: Option<String>,
+}
+
+/// Latency statistics, s.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+pub struct LatencyStats {
+    /// Samples.
+    pub count: u64,
+    /// Median (nearest rank).
+    pub p50: Option<f64>,
+    /// 99th percentile (nearest rank).
+    pub p99: Option<f64>,
+    /// Maximum.
+    pub max: Option<f64>,
+}
+
+impl LatencyStats {
+    /// Nearest-rank statistics of `samples` (NaNs ignored).
+    pub fn from_samples(samples: &[f64]) -> LatencyStats {
+        let mut v: Vec<f64> = samples.iter().copied().filter(|x| !x.is_nan()).collect();
+        v.sort_by(f64::total_cmp);
+        let rank = |p: f64| -> Option<f64> {
+            if v.is_empty() {
+                return None;
+            }
+            let idx = ((p / 100.0) * v.len() as f64).ceil() as usize;
+            Some(v[idx.clamp(1, v.len()) - 1])
+        };
+        LatencyStats {
+            count: v.len() as u64,
+            p50: rank(50.0),
+            p99: rank(99.0),
+            max: v.last().copied(),
+        }
+    }
+}
+
+/// End-of-run summary.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct Summary {
+    /// Run id.
+    pub run: String,
+    /// Frames logged.
+    pub frames: u64,
+    /// Frames presented after their deadline.
+    pub missed_deadlines: u64,
+    /// States dropped (stale, malformed, superseded, …) as reported.
+    pub dropped_states: u64,
+    /// State received → presented.
+    pub latency_state_to_present: LatencyStats,
+}
+
+/// Append-only, write-through frame log.
+#[derive(Debug)]
+pub struct FrameLog {
+    path: PathBuf,
+    file: File,
+    run_start: Instant,
+    run: String,
+    frames: u64,
+    missed: u64,
+    dropped_states: u64,
+    latencies: Vec<f64>,
+}
+
+impl FrameLog {
+    /// Opens (creating or appending to) `path`; `run_start` is time zero.
+    pub fn open(path: impl AsRef<Path>, run_start: Instant) -> Result<FrameLog> {
+        let path = path.as_ref();
+        let file = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(path)
+            .map_err(|e| Error::io(path, e))?;
+        let run = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos().to_string())
+            .unwrap_or_default();
+        Ok(FrameLog {
+            path: path.to_path_buf(),
+            file,
+            run_start,
+            run,
+            frames: 0,
+            missed: 0,
+            dropped_states: 0,
+            latencies: Vec::new(),
+        })
+    }
+
+    /// The log file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// This run's id.
+    pub fn run(&self) -> &str {
+        &self.run
+    }
+
+    /// Seconds from the run start to `t` (negative if before).
+    pub fn since_start(&self, t: Instant) -> f64 {
+        match t.checked_duration_since(self.run_start) {
+            Some(d) => d.as_secs_f64(),
+            None => -(self.run_start - t).as_secs_f64(),
+        }
+    }
+
+    /// Appends one record (setting `run` and `missed`) and syncs it to disk.
+    pub fn write(&mut self, mut rec: FrameRecord) -> Result<()> {
+        rec.run.clone_from(&self.run);
+        rec.missed = rec.t_presented > rec.deadline;
+        let mut line = serde_json::to_string(&rec)
+            .map_err(|e| Error::Other(format!("frame record not serialisable: {e}")))?;
+        line.push('\n');
+        let io = |e| Error::io(&self.path, e);
+        self.file.write_all(line.as_bytes()).map_err(io)?;
+        self.file.flush().map_err(io)?;
+        self.file.sync_data().map_err(io)?;
+        self.frames += 1;
+        self.missed += u64::from(rec.missed);
+        if let Some(r) = rec.t_state_received {
+            self.latencies.push(rec.t_presented - r);
+        }
+        Ok(())
+    }
+
+    /// Counts states dropped before rendering.
+    pub fn add_dropped_states(&mut self, n: u64) {
+        self.dropped_states += n;
+    }
+
+    /// Summary of the records written by this `FrameLog`.
+    pub fn summary(&self) -> Summary {
+        Summary {
+            run: self.run.clone(),
+            frames: self.frames,
+            missed_deadlines: self.missed,
+            dropped_states: self.dropped_states,
+            latency_state_to_present: LatencyStats::from_samples(&self.latencies),
+        }
+    }
+
+    /// Writes the summary as pretty JSON to `path` (atomically) and returns it.
+    pub fn write_summary(&self, path: impl AsRef<Path>) -> Result<Summary> {
+        let path = path.as_ref();
+        let s = self.summary();
+        let text = serde_json::to_string_pretty(&s)
+            .map_err(|e| Error::Other(format!("summary not serialisable: {e}")))?;
+        let tmp = path.with_extension("json.tmp");
+        std::fs::write(&tmp, text + "\n").map_err(|e| Error::io(&tmp, e))?;
+        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))?;
+        Ok(s)
+    }
+}
+
+/// Reads a frame log. An unterminated last line (crash mid-write) is
+/// ignored; any other bad line is an error naming the line.
+pub fn read_records(path: impl AsRef<Path>) -> Result<Vec<FrameRecord>> {
+    let path = path.as_ref();
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let complete = match text.rfind('\n') {
+        Some(i) => &text[..=i],
+        None => "",
+    };
+    complete
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            serde_json::from_str(l).map_err(|e| Error::parse(path, format!("line {}: {e}", i + 1)))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(frame: u64, recv: Option<f64>, presented: f64, deadline: f64) -> FrameRecord {
+        FrameRecord {
+            frame,
+            state_t: frame as f64 * 0.1,
+            t_state_received: recv,
+            t_render_start: presented - 0.01,
+            t_render_end: presented - 0.005,
+            t_convert_end: presented - 0.002,
+            t_presented: presented,
+            t_sync_sent: Some(presented + 0.0001),
+            t_ack: None,
+            deadline,
+            clipped: frame * 3,
+            peak_radiance: 12.5,
+            k: 0.25,
+            lut_sha256: "ab".repeat(32),
+            calibration_sha256: None,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn nearest_rank_percentiles() {
+        // 1 … 100 ms: nearest rank p50 = 50 ms, p99 = 99 ms.
+        let v: Vec<f64> = (1..=100).rev().map(|i| i as f64 * 1e-3).collect();
+        let s = LatencyStats::from_samples(&v);
+        assert_eq!(s.count, 100);
+        assert_eq!(s.p50, Some(0.050));
+        assert_eq!(s.p99, Some(0.099));
+        assert_eq!(s.max, Some(0.100));
+        let one = LatencyStats::from_samples(&[0.2]);
+        assert_eq!(
+            (one.p50, one.p99, one.max),
+            (Some(0.2), Some(0.2), Some(0.2))
+        );
+        assert_eq!(LatencyStats::from_samples(&[]).p50, None);
+    }
+
+    #[test]
+    fn records_summary_and_append_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("frames.jsonl");
+        std::fs::write(&p, "{\"old\":true}\n").unwrap();
+        let start = Instant::now();
+        let mut log = FrameLog::open(&p, start).unwrap();
+        assert!(log.since_start(start + std::time::Duration::from_millis(1500)) - 1.5 < 1e-9);
+        log.write(rec(0, Some(0.0), 0.020, 0.030)).unwrap();
+        log.write(rec(1, Some(0.1), 0.150, 0.130)).unwrap(); // missed
+        log.write(rec(2, None, 0.210, 0.230)).unwrap();
+        log.add_dropped_states(4);
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert!(
+            text.starts_with("{\"old\":true}\n"),
+            "existing content kept"
+        );
+        let lines: Vec<&str> = text.lines().skip(1).collect();
+        assert_eq!(lines.len(), 3);
+        let r1: FrameRecord = serde_json::from_str(lines[1]).unwrap();
+        assert!(r1.missed && r1.run == log.run() && r1.frame == 1);
+        let s = log.write_summary(dir.path().join("summary.json")).unwrap();
+        assert_eq!((s.frames, s.missed_deadlines, s.dropped_states), (3, 1, 4));
+        let l = s.latency_state_to_present;
+        assert_eq!(l.count, 2);
+        assert!((l.max.unwrap() - 0.05).abs() < 1e-12);
+        assert!((l.p50.unwrap() - 0.02).abs() < 1e-12);
+        let back: Summary = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("summary.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(back, s);
+    }
+
+    #[test]
+    fn reader_ignores_torn_last_line_but_reports_bad_lines() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("f.jsonl");
+        let good = serde_json::to_string(&rec(7, None, 1.0, 2.0)).unwrap();
+        std::fs::write(&p, format!("{good}\n{}", &good[..good.len() / 2])).unwrap();
+        let r = read_records(&p).unwrap();
+        assert_eq!(r.len(), 1);
+        assert_eq!(r[0].frame, 7);
+        std::fs::write(&p, format!("{good}\nnot json\n")).unwrap();
+        let e = read_records(&p).unwrap_err().to_string();
+        assert!(e.contains("f.jsonl") && e.contains("line 2"), "{e}");
+    }
+}
