@@ -304,3 +304,29 @@ pub fn run(args: &RunArgs) -> Result<()> {
     );
     Ok(())
 }
+
+/// `optistim validate amie`.
+pub fn validate_amie(img: &Path, model: &str, out: &Path, data: &Path) -> Result<()> {
+    use optistim::validate::compare;
+    let options = compare::ValidationOptions::new(data);
+    let run = compare::run(img, model, &options)
+        .with_context(|| format!("validating {} with {model}", img.display()))?;
+    compare::write_outputs(&run, out).with_context(|| format!("writing {}", out.display()))?;
+    let r = &run.report;
+    println!(
+        "{} {model}: shift ({:.2}, {:.2}) px; SSIM {:.5} (luminance {:.5}, contrast {:.5}, structure {:.5}); \
+         unnormalised luminance {:.5}; real/render total signal {:.4}; phase {:.3} vs label {:.2} deg",
+        r.product_id,
+        r.alignment.dx,
+        r.alignment.dy,
+        r.ssim.mssim,
+        r.ssim.luminance,
+        r.ssim.contrast,
+        r.ssim.structure,
+        r.ssim_unnormalised.luminance,
+        r.total_signal_ratio,
+        r.phase_derived_deg,
+        r.phase_label_deg
+    );
+    Ok(())
+}

@@ -83,6 +83,28 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Validate against real flight images.
+    #[command(subcommand)]
+    Validate(ValidateCommand),
+}
+
+#[derive(Subcommand)]
+enum ValidateCommand {
+    /// Render a SMART-1 AMIE image's scene and compare it with the image:
+    /// writes DIR/comparison.png and DIR/report.json (docs/VALIDATION.md).
+    Amie {
+        /// AMIE PDS3 product (.IMG).
+        img: PathBuf,
+        /// Reflection model: oren_nayar, hapke, lambert, lommel_seeliger.
+        #[arg(long, default_value = "oren_nayar")]
+        model: String,
+        /// Output directory.
+        #[arg(long, default_value = "out/validate")]
+        out: PathBuf,
+        /// Data directory (maps, solar spectrum, assumed AMIE response).
+        #[arg(long, default_value = "data")]
+        data: PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
@@ -130,6 +152,12 @@ fn main() -> ExitCode {
             repeats,
             json,
         } => cli::bench(&scene, &phases, &densities, repeats, json.as_deref()),
+        Command::Validate(ValidateCommand::Amie {
+            img,
+            model,
+            out,
+            data,
+        }) => cli::validate_amie(&img, &model, &out, &data),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

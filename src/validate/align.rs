@@ -13,7 +13,7 @@ use super::raster::Raster;
 use crate::error::{Error, Result};
 
 /// Result of [`ncc_align`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Alignment {
     /// Shift of `moving` relative to `reference`, px (right positive).
     pub dx: f64,

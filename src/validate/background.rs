@@ -27,7 +27,7 @@ use super::raster::Raster;
 use crate::error::{Error, Result};
 
 /// Apparent Moon disk in pixel coordinates (pixel centres at +0.5).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Disk {
     pub cx: f64,
     pub cy: f64,
@@ -42,7 +42,7 @@ impl Disk {
 }
 
 /// Tuning of the background model.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BackgroundParams {
     /// Sky pixels used for the polynomial are at least this far outside the limb.
     pub sky_margin_px: f64,
@@ -70,7 +70,7 @@ impl BackgroundParams {
 }
 
 /// The fitted background.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BackgroundModel {
     /// Median sky level far from the Moon, DN.
     pub dark_level_dn: f64,

@@ -331,3 +331,26 @@ pub fn unit_to_radec(v: DVec3) -> (f64, f64) {
         u.z.clamp(-1.0, 1.0).asin().to_degrees(),
     )
 }
+
+/// Rotation taking vectors on the mean equator and equinox of date to
+/// J2000, IAU 1976 precession (Lieske et al., *Astron. Astrophys.* 58, 1–16,
+/// 1977; Meeus eq. 21.2–21.4): `Rz(−z) Ry(θ) Rz(−ζ)`.
+pub fn precession_mean_of_date_to_j2000(jd_tt: f64) -> DMat3 {
+    let t = (jd_tt - JD_J2000) / 36_525.0;
+    let arcsec = |v: f64| (v / 3600.0).to_radians();
+    let zeta = arcsec(2306.2181 * t + 0.30188 * t * t + 0.017998 * t * t * t);
+    let z = arcsec(2306.2181 * t + 1.09468 * t * t + 0.018203 * t * t * t);
+    let theta = arcsec(2004.3109 * t - 0.42665 * t * t - 0.041833 * t * t * t);
+    DMat3::from_rotation_z(-z) * DMat3::from_rotation_y(theta) * DMat3::from_rotation_z(-zeta)
+}
+
+/// Rotation taking the label's Earth-fixed vectors (`SMART1:AMIE_SC_EFRF_VECTOR`)
+/// to J2000: Greenwich mean sidereal time about the pole of date, then
+/// precession to J2000. Nutation (≤ 17″) and polar motion are neglected;
+/// UT1 is taken equal to UTC (|UT1 − UTC| < 0.9 s). Checked on both AMIE
+/// images against DE421: the geocentric Moon rebuilt as
+/// `R · efrf + SC_TARGET_POSITION_VECTOR` is within ~30 km
+/// (`tests/validate_pipeline.rs`), against ~900 km for the analytic Moon.
+pub fn earth_fixed_to_j2000(jd_utc: f64, jd_tt: f64) -> DMat3 {
+    precession_mean_of_date_to_j2000(jd_tt) * DMat3::from_rotation_z(gmst_deg(jd_utc).to_radians())
+}

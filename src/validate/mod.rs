@@ -13,10 +13,12 @@
 //! | [`align`] | normalised cross-correlation alignment |
 //! | [`ssim`] | structural similarity (Wang et al. 2004) |
 //! | [`figure`] | side-by-side comparison PNGs |
+//! | [`compare`] | the whole pipeline: render an AMIE image, compare, report |
 
 pub mod align;
 pub mod amie;
 pub mod background;
+pub mod compare;
 pub mod ephem;
 pub mod figure;
 pub mod pds3;
