@@ -606,7 +606,7 @@ impl Texture {
                 let u = (q as f64 + 0.5) / k as f64 - 0.5;
                 let x = x0 + a1.0 * v + a2.0 * u;
                 let y = y0 + a1.1 * v + a2.1 * u;
-                let value = if sx <= 1.0 && sy <= 1.0 {
+                let value = if sx <= 1.5 && sy <= 1.5 {
                     map.sample_texel(x, y)
                 } else {
                     let (la, lo) = map.lat_lon_of(x, y);
@@ -628,6 +628,18 @@ impl Texture {
     /// (t0,s0), (t0,s1), (t1,s1), (t1,s0)) in proportion to the samples.
     #[inline]
     fn grid(&self, buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], pf: f64) {
+        // A cap inside one pixel needs no split.
+        let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
+        for p in &quad[1..] {
+            x0 = x0.min(p.0);
+            x1 = x1.max(p.0);
+            y0 = y0.min(p.1);
+            y1 = y1.max(p.1);
+        }
+        if x0.floor() == x1.floor() && y0.floor() == y1.floor() {
+            add(buf, roi, x0.floor() as i64, y0.floor() as i64, pf);
+            return;
+        }
         let k = self.k;
         let sum: f64 = self.values[..k * k].iter().sum();
         if !(sum > 0.0) {

@@ -48,7 +48,7 @@ pub struct RenderSettings {
 }
 
 /// Default caps per pixel along each axis.
-pub const DEFAULT_DENSITY: f64 = 2.0;
+pub const DEFAULT_DENSITY: f64 = 1.0;
 
 impl Default for RenderSettings {
     fn default() -> Self {

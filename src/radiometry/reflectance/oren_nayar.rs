@@ -99,10 +99,9 @@ impl OrenNayar {
         let c3 = self.c3 * four_ab * four_ab;
         // tan β μ0 = sin β (μ0 / cos β) with μ0 ≤ cos β.
         let tan_beta_mu0 = ab.sin_beta * (g.mu0 / ab.cos_beta);
-        // tan((α+β)/2) μ0 with μ0 ≤ 2 cos((α+β)/2); cos s > 0 since
-        // s ≤ acos(0) < π/2 in floating point.
-        let s = 0.5 * (ab.alpha + ab.beta);
-        let tan_s_mu0 = s.sin() * (g.mu0 / s.cos());
+        // tan((α+β)/2) = (sin α + sin β)/(cos α + cos β) (half-angle sum
+        // identity), with cos α + cos β = μ0 + μ > 0 and μ0 ≤ μ0 + μ.
+        let tan_s_mu0 = (ab.sin_alpha + ab.sin_beta) * (g.mu0 / (g.mu0 + g.mu));
         let direct = albedo
             * FRAC_1_PI
             * (self.c1 * g.mu0
