@@ -16,6 +16,9 @@
 //! Conventions (SI units, OpenCV camera frame, scalar-first quaternions,
 //! pixel centres at +0.5) are described in `docs/CONVENTIONS.md`.
 
+// `!(x > 0.0)` is used on purpose: it is also true for NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod error;
 pub mod facility;
 pub mod radiometry;

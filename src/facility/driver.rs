@@ -208,7 +208,7 @@ fn render_loop(
                     break;
                 }
                 *next += 1;
-                (Some(states[*next - 1].clone()), None)
+                (Some(states[*next - 1]), None)
             }
             Source::Udp(rx) => {
                 if let Some((s, at)) = rx.latest() {
@@ -216,7 +216,7 @@ fn render_loop(
                 }
                 dropped.store(rx.stats().dropped(), Ordering::Relaxed);
                 match &last {
-                    Some((s, at)) if at.elapsed() <= state_timeout => (Some(s.clone()), Some(*at)),
+                    Some((s, at)) if at.elapsed() <= state_timeout => (Some(*s), Some(*at)),
                     _ => (None, last.as_ref().map(|l| l.1)),
                 }
             }

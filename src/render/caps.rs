@@ -263,9 +263,9 @@ impl Frame<'_> {
             |a: (f64, f64), b: (f64, f64)| ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt();
         let mut along_t: f64 = 0.0;
         let mut along_s: f64 = 0.0;
-        for k in 0..3 {
+        for (k, row) in pts.iter().enumerate() {
             along_t = along_t.max(dist(pts[0][k], pts[1][k]) + dist(pts[1][k], pts[2][k]));
-            along_s = along_s.max(dist(pts[k][0], pts[k][1]) + dist(pts[k][1], pts[k][2]));
+            along_s = along_s.max(dist(row[0], row[1]) + dist(row[1], row[2]));
         }
         let big = along_t.max(along_s) > LEAF_CELL_PX;
         // Near the top levels the 3×3 samples may miss curvature: always

@@ -121,13 +121,16 @@ pub struct RenderStats {
     pub roi: Rect,
 }
 
+/// One worker's accumulation buffer (over the ROI) and corner-row scratch.
+type Worker = (Vec<f32>, [Vec<(f64, f64)>; 2]);
+
 /// Renders bodies onto one pixel grid. Buffers are kept between calls and
 /// only grow up to the image size, so a frame loop does not allocate.
 pub struct Renderer {
     camera: Pinhole,
     flux: Vec<f32>,
     dirty: Rect,
-    workers: Vec<(Vec<f32>, [Vec<(f64, f64)>; 2])>,
+    workers: Vec<Worker>,
     leaves: Vec<Leaf>,
     stack: Vec<Cell>,
     chunks: Vec<std::ops::Range<usize>>,

@@ -146,7 +146,7 @@ impl State {
             ));
         }
         if let Some(o) = &self.occulter {
-            if !o.position.is_finite() || !(o.radius.is_finite() && o.radius > 0.0) {
+            if !(o.position.is_finite() && o.radius.is_finite() && o.radius > 0.0) {
                 return Err(Error::invalid(
                     format!("{field}.occulter"),
                     "needs a finite position and a radius > 0",

@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Facility benchmark of BENCHMARKS.md: a 400 px Moon (full Oren-Nayar, albedo
+# map) on a 60 Hz screen, sim display and serial, N frames; prints the run
+# summary (missed deadlines, latency state->present) and the peak RSS.
+# usage: tools/bench_facility.sh [1920|2560] [FRAMES]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+screen=${1:-1920}
+frames=${2:-3600}
+mkdir -p out/bench
+case $screen in
+  1920) range=9.415e7 ;;   # 400 px at 92.3 µrad/px
+  2560) range=1.1181e8 ;;  # 400 px at 77.7 µrad/px
+  *) echo "screen must be 1920 or 2560" >&2; exit 2 ;;
+esac
+python3 tools/make_hold.py out/bench/hold_$screen.csv "$frames" "$range"
+cargo build --release -q
+rm -f out/bench/frames_$screen.jsonl
+/usr/bin/time -v ./target/release/optistim run configs/bench_facility_$screen.toml \
+  --trajectory out/bench/hold_$screen.csv --log out/bench/frames_$screen.jsonl \
+  --summary out/bench/summary_$screen.json 2> out/bench/time_$screen.txt
+grep -E "Maximum resident|Elapsed" out/bench/time_$screen.txt
+cat out/bench/summary_$screen.json
