@@ -320,21 +320,15 @@ fn free_port() -> SocketAddr {
         .unwrap()
 }
 
-type RunOutcome = (
-    optistim::Result<Summary>,
-    SimDisplay,
-    SimSync,
-    std::time::Duration,
-);
+type RunOutcome = (optistim::Result<Summary>, SimDisplay, SimSync);
 
 /// Runs the driver on its own thread with a display keeping every frame.
 fn spawn_run(plan: RunPlan, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<RunOutcome> {
     std::thread::spawn(move || {
         let mut display = SimDisplay::keep_all(W, H);
         let mut sync = SimSync::new();
-        let start = Instant::now();
         let r = driver::run(plan, &mut display, &mut sync, stop);
-        (r, display, sync, start.elapsed())
+        (r, display, sync)
     })
 }
 
@@ -564,7 +558,7 @@ fn udp_closed_loop_renders_exactly_the_valid_in_order_states() {
     send_valid_and_wait(valid[3]);
     let rejected = 6;
 
-    let (result, display, sync, _) = handle.join().unwrap();
+    let (result, display, sync) = handle.join().unwrap();
     let summary = result.unwrap();
     assert_eq!(summary.frames, frames, "the run ends at --frames");
     assert_eq!(display.presented(), frames);
@@ -686,7 +680,7 @@ fn state_timeout_shows_the_safe_black_frame() {
         r.iter().any(|r| r.state_t == 7.0)
     });
 
-    let (result, display, sync, _) = handle.join().unwrap();
+    let (result, display, sync) = handle.join().unwrap();
     let summary = result.unwrap();
     assert_eq!(summary.frames, frames);
     let records = rig.records();
@@ -775,7 +769,7 @@ fn stop_flag_stops_cleanly() {
     std::thread::sleep(Duration::from_millis(300));
     let stopped_at = Instant::now();
     stop.store(true, Ordering::Relaxed);
-    let (result, display, sync, _) = handle.join().unwrap();
+    let (result, display, sync) = handle.join().unwrap();
     assert!(
         stopped_at.elapsed() < Duration::from_secs(2),
         "run took {:?} to stop",
