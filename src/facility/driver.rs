@@ -446,10 +446,11 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
             exposure_us,
         });
         let outcome = sync.send(&line);
-        let sync_sent = Instant::now();
+        let mut sync_sent = None;
         let mut ack = None;
         match outcome {
             Ok(SendOutcome::Queued) => {
+                sync_sent = Some(Instant::now());
                 if config.sync.ack {
                     if let Ok(Some(_)) = sync.wait_ack(ack_timeout) {
                         ack = Some(Instant::now());
@@ -463,12 +464,14 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
             run: String::new(),
             frame: job.frame,
             state_t: job.state_t,
-            t_state_received: Some(log.since_start(job.state_received.unwrap_or(job.render_start))),
+            // A safe frame shows no state: no receive time, no latency.
+            t_state_received: (!job.safe)
+                .then(|| log.since_start(job.state_received.unwrap_or(job.render_start))),
             t_render_start: log.since_start(job.render_start),
             t_render_end: log.since_start(job.render_end),
             t_convert_end: log.since_start(job.convert_end),
             t_presented: log.since_start(presented),
-            t_sync_sent: Some(log.since_start(sync_sent)),
+            t_sync_sent: sync_sent.map(|t| log.since_start(t)),
             t_ack: ack.map(|a| log.since_start(a)),
             deadline: log.since_start(deadline),
             missed: false,
@@ -484,9 +487,10 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
             break;
         }
         schedule = Some(slot.max(now) + period);
-        if free_tx.send(job.buffer).is_err() {
-            break;
-        }
+        // The render thread may already have finished (frame limit, end of
+        // the trajectory) with its last frame still queued in `ready_rx`:
+        // keep presenting until that channel is drained and disconnected.
+        let _ = free_tx.send(job.buffer);
     }
     stop.store(true, Ordering::Relaxed);
     drop(ready_rx);

@@ -41,9 +41,12 @@ pub struct FrameRecord {
     pub run: String,
     /// Frame id.
     pub frame: u64,
-    /// Time of the rendered state, s.
+    /// Time of the rendered state, s; NaN for a safe frame (no state),
+    /// written as JSON `null`.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub state_t: f64,
-    /// State received (closed loop), s since run start.
+    /// State received (closed loop; replay: the render start), s since run
+    /// start. `None` for a safe frame, which shows no state.
     pub t_state_received: Option<f64>,
     /// Render start.
     pub t_render_start: f64,
@@ -53,7 +56,8 @@ pub struct FrameRecord {
     pub t_convert_end: f64,
     /// Presented (display server has the image).
     pub t_presented: f64,
-    /// Sync command handed to the port.
+    /// Sync command handed to the port (`None`: the port refused it, e.g.
+    /// device gone or queue full).
     pub t_sync_sent: Option<f64>,
     /// Acknowledgement received.
     pub t_ack: Option<f64>,
@@ -74,6 +78,12 @@ pub struct FrameRecord {
     /// The safe (black) frame was shown: no current state.
     #[serde(default)]
     pub safe_frame: bool,
+}
+
+/// A number, or `null` (how serde_json writes a non-finite `f64`) read
+/// back as NaN.
+fn f64_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// Latency statistics, s.
@@ -322,6 +332,21 @@ mod tests {
         )
         .unwrap();
         assert_eq!(back, s);
+    }
+
+    #[test]
+    fn safe_frame_without_state_time_reads_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("f.jsonl");
+        let mut log = FrameLog::open(&p, Instant::now()).unwrap();
+        log.write(FrameRecord {
+            state_t: f64::NAN,
+            safe_frame: true,
+            ..rec(0, None, 1.0, 2.0)
+        })
+        .unwrap();
+        let r = read_records(&p).unwrap();
+        assert!(r[0].state_t.is_nan() && r[0].safe_frame);
     }
 
     #[test]

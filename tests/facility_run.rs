@@ -1,0 +1,930 @@
+//! End-to-end tests of the facility driver (`driver::run`, issue 4's
+//! acceptance tests): trajectory or real UDP states in, frames on a
+//! simulated 320×240 screen, sync lines on a simulated serial port, frame log
+//! and summary on disk, plus the fault paths and the `optistim run` binary.
+//!
+//! Everything the driver reads (facility TOML, scene TOML, trajectory CSV,
+//! LUT CSV) is written by the test into a temporary directory. The LUT is an
+//! independent gamma-2.2 curve given at all 256 levels, so the radiance of
+//! each displayed level is known here without the library's interpolant.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use sha2::{Digest, Sha256};
+use tempfile::TempDir;
+
+use optistim::facility::config::FacilityConfig;
+use optistim::facility::display::SimDisplay;
+use optistim::facility::driver::{self, RunPlan, StateSource};
+use optistim::facility::frame_id::{Corner, FrameIdCode};
+use optistim::facility::log::{read_records, FrameRecord, Summary};
+use optistim::facility::lut::FlatField;
+use optistim::facility::serial::{Exchange, SimSync};
+use optistim::facility::trajectory::Trajectory;
+use optistim::render::detector::{render_scene, PixelGeometry};
+use optistim::render::Renderer;
+use optistim::scene::Scene;
+
+const W: usize = 320;
+const H: usize = 240;
+/// Test LUT: radiance = L_MAX·(level/255)^2.2 + BLACK (W m⁻² sr⁻¹).
+const L_MAX: f64 = 0.5;
+const BLACK: f64 = 5.0e-4;
+const GAMMA: f64 = 2.2;
+/// k = flight_exposure / facility_exposure of the test facility file.
+const K: f64 = 0.01;
+const TAU: f64 = 0.85;
+/// Camera 4.7e8 m from a Moon-sized body: ≈ 80 screen pixels across
+/// (collimator 3 m, pitch 0.2768 mm: 10 838 px focal length).
+const RANGE: f64 = 4.7e8;
+const SUN: [f64; 3] = [7.48e10, 0.0, -1.29557e11];
+
+/// Radiance of drive level `level` of the test LUT (independent of the
+/// library's LUT code).
+fn lut_radiance(level: u32) -> f64 {
+    L_MAX * (level as f64 / 255.0).powf(GAMMA) + BLACK
+}
+
+fn gamma_lut_csv() -> String {
+    let mut s = String::from("# gamma 2.2 test LUT\ndrive_level,radiance_w_m2_sr\n");
+    for l in 0..=255u32 {
+        s.push_str(&format!("{l},{}\n", lut_radiance(l)));
+    }
+    s
+}
+
+const SCENE: &str = r#"
+[camera]
+resolution = [64, 64]
+pixel_pitch = 10e-6
+fov_deg = 6.0
+f_number = 2.5
+exposure = 2.0e-5
+full_well = 1.0e5
+bits = 12
+band = [450e-9, 820e-9]
+
+[sun]
+spectrum = "blackbody"
+temperature = 5772.0
+irradiance_1au = 1361.0
+
+[body]
+radius = 1737.4e3
+reflectance = { model = "lambert", albedo = 0.15 }
+
+[state]
+body_position = [0.0, 0.0, 0.0]
+body_attitude = [1.0, 0.0, 0.0, 0.0]
+camera_position = [0.0, 0.0, -4.7e8]
+camera_attitude = [1.0, 0.0, 0.0, 0.0]
+sun_position = [7.48e10, 0.0, -1.29557e11]
+"#;
+
+/// Settings of the test facility file that vary between tests.
+struct Facility {
+    refresh_hz: f64,
+    state_timeout: f64,
+    lut: &'static str,
+    flat_field: Option<&'static str>,
+}
+
+impl Default for Facility {
+    fn default() -> Self {
+        Facility {
+            refresh_hz: 60.0,
+            state_timeout: 0.5,
+            lut: "lut.csv",
+            flat_field: None,
+        }
+    }
+}
+
+impl Facility {
+    fn toml(&self) -> String {
+        let flat = self
+            .flat_field
+            .map(|f| format!("flat_field = \"{f}\"\n"))
+            .unwrap_or_default();
+        format!(
+            r#"
+[scenario]
+scene = "scene.toml"
+trajectory = "trajectory.csv"
+
+[screen]
+resolution = [{W}, {H}]
+pixel_pitch = 2.768e-4
+refresh_hz = {refresh}
+
+[collimator]
+focal_length = 3.0
+transmission = {TAU}
+
+[calibration]
+lut = "{lut}"
+{flat}
+[drive]
+flight_exposure = 2.0e-5
+facility_exposure = 2.0e-3
+dither = "bayer"
+temporal = true
+seed = 1
+bits = 8
+
+[frame_id]
+enabled = true
+corner = "top_left"
+bits = 24
+cell_px = 4
+
+[sync]
+template = "FRAME {{id}} {{t}} {{exposure_us}}\n"
+ack = true
+ack_timeout = 0.005
+
+[timing]
+state_timeout = {timeout}
+"#,
+            refresh = self.refresh_hz,
+            timeout = self.state_timeout,
+            lut = self.lut,
+        )
+    }
+}
+
+/// A temporary directory holding a complete facility setup.
+struct Rig {
+    dir: TempDir,
+    config: FacilityConfig,
+    scene: Scene,
+}
+
+impl Rig {
+    fn new(f: Facility, states: usize) -> Rig {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path();
+        std::fs::write(p.join("scene.toml"), SCENE).unwrap();
+        std::fs::write(p.join("lut.csv"), gamma_lut_csv()).unwrap();
+        std::fs::write(p.join("trajectory.csv"), trajectory_csv(states)).unwrap();
+        std::fs::write(p.join("facility.toml"), f.toml()).unwrap();
+        let config = FacilityConfig::load(p.join("facility.toml")).unwrap();
+        let scene = Scene::from_file(&config.scenario.scene).unwrap();
+        Rig { dir, config, scene }
+    }
+
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.path().join(name)
+    }
+
+    fn trajectory(&self) -> Trajectory {
+        Trajectory::load(self.config.scenario.trajectory.as_ref().unwrap()).unwrap()
+    }
+
+    fn plan(&self, source: StateSource, frames: Option<u64>) -> RunPlan {
+        RunPlan {
+            config: self.config.clone(),
+            scene: self.scene.clone(),
+            source,
+            frames,
+            log: self.path("frames.jsonl"),
+            summary: self.path("summary.json"),
+        }
+    }
+
+    fn records(&self) -> Vec<FrameRecord> {
+        read_records(self.path("frames.jsonl")).unwrap()
+    }
+
+    fn summary_file(&self) -> Summary {
+        let text = std::fs::read_to_string(self.path("summary.json")).unwrap();
+        serde_json::from_str(&text).unwrap()
+    }
+}
+
+/// The summary file says what `run` returned (latencies to 1e-12 s: the
+/// JSON number parser does not round-trip every `f64` bit for bit).
+fn assert_same_summary(file: &Summary, returned: &Summary) {
+    assert_eq!(
+        (
+            &file.run,
+            file.frames,
+            file.missed_deadlines,
+            file.dropped_states
+        ),
+        (
+            &returned.run,
+            returned.frames,
+            returned.missed_deadlines,
+            returned.dropped_states
+        )
+    );
+    let (a, b) = (
+        &file.latency_state_to_present,
+        &returned.latency_state_to_present,
+    );
+    assert_eq!(a.count, b.count);
+    for (x, y) in [(a.p50, b.p50), (a.p99, b.p99), (a.max, b.max)] {
+        assert_eq!(x.is_some(), y.is_some());
+        if let (Some(x), Some(y)) = (x, y) {
+            assert!((x - y).abs() < 1e-12, "{x} vs {y}");
+        }
+    }
+}
+
+/// State time of trajectory row `i`.
+fn state_t(i: usize) -> f64 {
+    0.05 * i as f64
+}
+
+/// Camera on −z approaching the body at the origin, boresight +z.
+fn trajectory_csv(n: usize) -> String {
+    let mut s = String::from("t,cam_x,cam_y,cam_z,cam_qw,cam_qx,cam_qy,cam_qz,sun_x,sun_y,sun_z\n");
+    for i in 0..n {
+        s.push_str(&format!(
+            "{},0,0,{:e},1,0,0,0,{:e},{:e},{:e}\n",
+            state_t(i),
+            -RANGE + 1.0e5 * i as f64,
+            SUN[0],
+            SUN[1],
+            SUN[2]
+        ));
+    }
+    s
+}
+
+/// One UDP datagram in the 18-field CSV form.
+fn datagram(t: f64, cam_z: f64) -> String {
+    format!(
+        "{t},0,0,{cam_z},1,0,0,0,{:e},{:e},{:e},,,,,,,\n",
+        SUN[0], SUN[1], SUN[2]
+    )
+}
+
+fn frame_id_code() -> FrameIdCode {
+    FrameIdCode::new(true, Corner::TopLeft, 24, 4, 8, (W, H)).unwrap()
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// Drive level of a frame-buffer pixel; the pixel must be grey.
+fn level(pixel: u32) -> u32 {
+    let (r, g, b) = ((pixel >> 16) & 0xff, (pixel >> 8) & 0xff, pixel & 0xff);
+    assert!(
+        r == g && g == b && pixel >> 24 == 0,
+        "not grey: {pixel:#010x}"
+    );
+    g
+}
+
+/// Pixels outside the frame-id block that are not black.
+fn lit_outside_block(frame: &[u32]) -> usize {
+    let block = frame_id_code().region();
+    (0..W * H)
+        .filter(|&i| !block.contains(i % W, i / W) && frame[i] != 0)
+        .count()
+}
+
+fn no_stop() -> Arc<AtomicBool> {
+    Arc::new(AtomicBool::new(false))
+}
+
+/// Polls the frame log until `done` holds for its records.
+fn wait_for_log(path: &Path, what: &str, done: impl Fn(&[FrameRecord]) -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if let Ok(records) = read_records(path) {
+            if done(&records) {
+                return;
+            }
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// A free loopback UDP port (bound, read and released).
+fn free_port() -> SocketAddr {
+    UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+}
+
+type RunOutcome = (optistim::Result<Summary>, SimDisplay, SimSync);
+
+/// Runs the driver on its own thread with a display keeping every frame.
+fn spawn_run(plan: RunPlan, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<RunOutcome> {
+    std::thread::spawn(move || {
+        let mut display = SimDisplay::keep_all(W, H);
+        let mut sync = SimSync::new();
+        let r = driver::run(plan, &mut display, &mut sync, stop);
+        (r, display, sync)
+    })
+}
+
+// ---------------------------------------------------------------------------
+// 1. Simulated end-to-end run.
+
+#[test]
+fn sim_end_to_end_replay() {
+    let rig = Rig::new(Facility::default(), 5);
+    let mut display = SimDisplay::keep_all(W, H);
+    let mut sync = SimSync::new();
+    let summary = driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap();
+
+    // Frames: five, each carrying its id and showing the body.
+    assert_eq!(display.presented(), 5);
+    let code = frame_id_code();
+    let frames: Vec<_> = display.frames().collect();
+    assert_eq!(frames.len(), 5);
+    for (i, f) in frames.iter().enumerate() {
+        assert_eq!(code.decode_frame(&f.pixels), Ok(i as u64), "frame {i}");
+        let lit = lit_outside_block(&f.pixels);
+        // ≈ 80 px disc, 30° phase: a few thousand lit pixels.
+        assert!(lit > 2000 && lit < 6000, "frame {i}: {lit} lit pixels");
+    }
+
+    // Sync: one line per frame from the template; the exposure is the
+    // facility exposure (2 ms), not the flight camera's.
+    let expected: Vec<String> = (0..5)
+        .map(|i| format!("FRAME {i} {:.6} 2000\n", state_t(i)))
+        .collect();
+    assert_eq!(sync.sent_lines(), expected);
+
+    // Log: five records, in order, with the LUT hash of the file's bytes.
+    let lut_sha = sha256_hex(&std::fs::read(rig.path("lut.csv")).unwrap());
+    let records = rig.records();
+    assert_eq!(records.len(), 5);
+    for (i, r) in records.iter().enumerate() {
+        assert_eq!(r.frame, i as u64);
+        assert_eq!(r.state_t, state_t(i));
+        assert_eq!(r.lut_sha256, lut_sha);
+        assert_eq!(r.calibration_sha256, None);
+        assert!((r.k - K).abs() < 1e-15, "k = {}", r.k);
+        assert!(!r.safe_frame);
+        assert!(r.t_ack.is_some(), "simulated port acknowledges every line");
+        assert!(r.t_render_start <= r.t_render_end && r.t_render_end <= r.t_convert_end);
+        assert!(r.t_convert_end <= r.t_presented);
+        assert!(r.peak_radiance > 0.0);
+        assert_eq!(r.run, records[0].run);
+    }
+    for w in records.windows(2) {
+        assert!(w[1].t_presented > w[0].t_presented);
+    }
+
+    assert_eq!(summary.frames, 5);
+    assert_eq!(summary.dropped_states, 0);
+    assert_same_summary(&rig.summary_file(), &summary);
+}
+
+// ---------------------------------------------------------------------------
+// 2. The drive levels invert the LUT.
+
+/// Screen radiance the camera must see, per screen pixel: the scene radiance
+/// rendered by the library's detector chain on a camera equal to the screen
+/// pinhole, × k ÷ τ.
+fn expected_screen_radiance(rig: &Rig) -> Vec<f64> {
+    let traj = rig.trajectory();
+    let s = &traj.states[0];
+    let mut scene = rig.scene.clone();
+    scene.camera.pinhole = driver::screen_pinhole(&rig.config);
+    scene.state.camera_position = s.camera_position;
+    scene.state.camera_attitude = s.camera_attitude;
+    scene.state.sun_position = s.sun_position;
+    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let pixels = PixelGeometry::new(&renderer);
+    let images = render_scene(&scene, &mut renderer, &pixels).unwrap();
+    images
+        .radiance
+        .iter()
+        .map(|&l| l as f64 * K / TAU)
+        .collect()
+}
+
+#[test]
+fn drive_levels_invert_the_lut() {
+    let rig = Rig::new(Facility::default(), 1);
+    let mut display = SimDisplay::keep_all(W, H);
+    let mut sync = SimSync::new();
+    driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap();
+    let frame = &display.last().unwrap().pixels;
+    let target = expected_screen_radiance(&rig);
+    let peak = target.iter().cloned().fold(0.0, f64::max);
+    assert!(
+        peak > 0.3 * L_MAX && peak < lut_radiance(255),
+        "test setup: peak screen radiance {peak} should use most of the LUT without clipping"
+    );
+    let block = frame_id_code().region();
+
+    // Per pixel: the displayed level is one of the two bracketing the target.
+    // Pixels with target 0 (sky) must be black; pixels with 0 < target <
+    // black (the limb's partial pixels, the terminator) are clipped to 0.
+    let mut checked = 0;
+    for y in 0..H {
+        for x in 0..W {
+            if block.contains(x, y) {
+                continue;
+            }
+            let i = y * W + x;
+            let t = target[i];
+            let lv = level(frame[i]);
+            if t < lut_radiance(0) {
+                assert_eq!(lv, 0, "({x}, {y}): target {t} below black");
+                continue;
+            }
+            let shown = lut_radiance(lv);
+            // The two levels bracketing t: L_k ≤ t < L_{k+1}.
+            let k = (0..255u32).rev().find(|&k| lut_radiance(k) <= t).unwrap();
+            let step = lut_radiance(k + 1) - lut_radiance(k);
+            assert!(
+                (shown - t).abs() <= step * (1.0 + 1e-9),
+                "({x}, {y}): target {t}, level {lv} shows {shown}, step {step}"
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 2000, "{checked} lit pixels");
+
+    // Per 8×8 block of the screen grid wholly inside the lit body (every
+    // target at or above the black level, so nothing is clipped and no pixel
+    // is partly sky): the mean displayed radiance matches the mean target to
+    // 0.2 %. Blocks touching the limb or the terminator are excluded because
+    // their zero or clipped pixels cannot be shown as asked.
+    let mut blocks = 0;
+    let mut worst: f64 = 0.0;
+    for by in (0..H).step_by(8) {
+        for bx in (0..W).step_by(8) {
+            let px: Vec<usize> = (by..by + 8)
+                .flat_map(|y| (bx..bx + 8).map(move |x| y * W + x))
+                .collect();
+            if px.iter().any(|&i| target[i] < lut_radiance(0)) {
+                continue;
+            }
+            let mean_t: f64 = px.iter().map(|&i| target[i]).sum::<f64>() / 64.0;
+            let mean_d: f64 = px
+                .iter()
+                .map(|&i| lut_radiance(level(frame[i])))
+                .sum::<f64>()
+                / 64.0;
+            let rel = (mean_d - mean_t).abs() / mean_t;
+            worst = worst.max(rel);
+            assert!(
+                rel <= 2e-3,
+                "block ({bx}, {by}): mean shown {mean_d}, mean target {mean_t} ({:.3} %)",
+                rel * 100.0
+            );
+            blocks += 1;
+        }
+    }
+    assert!(blocks >= 20, "only {blocks} full blocks inside the body");
+    println!("{blocks} blocks, worst block error {:.4} %", worst * 100.0);
+}
+
+// ---------------------------------------------------------------------------
+// 3. Real UDP closed loop.
+
+#[test]
+fn udp_closed_loop_renders_exactly_the_valid_in_order_states() {
+    let rig = Rig::new(
+        Facility {
+            refresh_hz: 20.0,
+            state_timeout: 30.0,
+            ..Default::default()
+        },
+        1,
+    );
+    let client = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let foreign = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let bind = free_port();
+    let frames = 60;
+    let handle = spawn_run(
+        rig.plan(
+            StateSource::Udp {
+                bind,
+                sender: client.local_addr().unwrap(),
+            },
+            Some(frames),
+        ),
+        no_stop(),
+    );
+    let log = rig.path("frames.jsonl");
+    // The socket is bound before the log is opened: once a (safe) frame is
+    // logged, datagrams reach the driver.
+    wait_for_log(&log, "the first frame", |r| !r.is_empty());
+
+    let valid = [1.0, 2.0, 3.0, 4.0];
+    let send = |sock: &UdpSocket, payload: &[u8]| {
+        sock.send_to(payload, bind).unwrap();
+    };
+    let send_valid_and_wait = |t: f64| {
+        send(&client, datagram(t, -RANGE + t * 1e5).as_bytes());
+        // Pacing: the next datagram goes out only once this state is on
+        // screen, so every valid state is rendered in a frame of its own.
+        wait_for_log(&log, &format!("state t = {t} in the log"), |r| {
+            r.iter().any(|r| r.state_t == t)
+        });
+    };
+    send_valid_and_wait(valid[0]);
+    send(&client, datagram(0.5, -RANGE).as_bytes()); // older than 1.0
+    send(&client, b"\x00garbage, not a state\xff"); // garbage
+    send(&client, datagram(1.5, f64::NAN).as_bytes()); // NaN position
+    send(&foreign, datagram(50.0, -RANGE).as_bytes()); // foreign socket
+    send_valid_and_wait(valid[1]);
+    send(&client, datagram(2.0, -RANGE).as_bytes()); // repeated t
+    send_valid_and_wait(valid[2]);
+    send(&client, datagram(2.5, -RANGE).as_bytes()); // older than 3.0
+    send_valid_and_wait(valid[3]);
+    let rejected = 6;
+
+    let (result, display, sync) = handle.join().unwrap();
+    let summary = result.unwrap();
+    assert_eq!(summary.frames, frames, "the run ends at --frames");
+    assert_eq!(display.presented(), frames);
+    assert_eq!(sync.sent_lines().len(), frames as usize);
+    let records = rig.records();
+    assert_eq!(records.len(), frames as usize);
+
+    // Frames before the first state are safe; after it, every frame shows
+    // the newest valid state (timeout 30 s), in order, each valid one.
+    let shown: Vec<f64> = records
+        .iter()
+        .filter(|r| !r.safe_frame)
+        .map(|r| r.state_t)
+        .collect();
+    let mut distinct = shown.clone();
+    distinct.dedup();
+    assert_eq!(distinct, valid, "state_t of the rendered frames: {shown:?}");
+    let first = records.iter().position(|r| !r.safe_frame).unwrap();
+    assert!(
+        records[first..].iter().all(|r| !r.safe_frame),
+        "no safe frame after the first state within the timeout"
+    );
+    assert!(records[..first].iter().all(|r| r.state_t.is_nan()));
+    assert_eq!(summary.dropped_states, rejected);
+    assert_eq!(rig.summary_file().dropped_states, rejected);
+
+    // Each presented frame carries the id of its record.
+    let code = frame_id_code();
+    for (f, r) in display.frames().zip(&records) {
+        assert_eq!(code.decode_frame(&f.pixels), Ok(r.frame));
+    }
+}
+
+// ---------------------------------------------------------------------------
+// 4. Faults.
+
+#[test]
+fn serial_device_gone_does_not_stop_or_block_the_run() {
+    let rig = Rig::new(Facility::default(), 8);
+    let mut display = SimDisplay::new(W, H, 0);
+    let mut sync = SimSync::new();
+    sync.gone = Some((2, 3));
+    let start = Instant::now();
+    let summary = driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap();
+    // 8 frames at 60 Hz: ≈ 0.13 s; a blocking sync would take far longer.
+    assert!(
+        start.elapsed() < Duration::from_secs(5),
+        "{:?}",
+        start.elapsed()
+    );
+    assert_eq!(display.presented(), 8);
+    assert_eq!(summary.frames, 8);
+    let records = rig.records();
+    assert_eq!(
+        records.iter().map(|r| r.frame).collect::<Vec<_>>(),
+        (0..8).collect::<Vec<_>>()
+    );
+    // Lines 2, 3, 4 refused, the others delivered and acknowledged.
+    let refused: Vec<&str> = sync
+        .exchange
+        .iter()
+        .filter_map(|e| match e {
+            Exchange::Refused(l) => Some(l.as_str()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(refused.len(), 3);
+    assert!(refused[0].starts_with("FRAME 2 "), "{refused:?}");
+    assert_eq!(sync.sent_lines().len(), 5);
+    for r in &records {
+        let gone = (2..5).contains(&r.frame);
+        assert_eq!(r.t_ack.is_none(), gone, "frame {}", r.frame);
+        assert_eq!(
+            r.t_sync_sent.is_none(),
+            gone,
+            "frame {}: no sync time for a line that was not sent",
+            r.frame
+        );
+    }
+}
+
+#[test]
+fn state_timeout_shows_the_safe_black_frame() {
+    let rig = Rig::new(
+        Facility {
+            refresh_hz: 20.0,
+            state_timeout: 0.15,
+            ..Default::default()
+        },
+        1,
+    );
+    let client = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let bind = free_port();
+    let frames = 24;
+    let handle = spawn_run(
+        rig.plan(
+            StateSource::Udp {
+                bind,
+                sender: client.local_addr().unwrap(),
+            },
+            Some(frames),
+        ),
+        no_stop(),
+    );
+    let log = rig.path("frames.jsonl");
+    // No state yet: safe frames.
+    wait_for_log(&log, "two frames", |r| r.len() >= 2);
+    client
+        .send_to(datagram(7.0, -RANGE).as_bytes(), bind)
+        .unwrap();
+    // Then one state, then nothing.
+    wait_for_log(&log, "the state in the log", |r| {
+        r.iter().any(|r| r.state_t == 7.0)
+    });
+
+    let (result, display, sync) = handle.join().unwrap();
+    let summary = result.unwrap();
+    assert_eq!(summary.frames, frames);
+    let records = rig.records();
+    assert_eq!(records.len(), frames as usize);
+    let frames_shown: Vec<_> = display.frames().collect();
+    assert_eq!(frames_shown.len(), frames as usize);
+
+    let first = records.iter().position(|r| !r.safe_frame).unwrap();
+    let last = records.iter().rposition(|r| !r.safe_frame).unwrap();
+    assert!(first >= 2, "frames before the state are safe");
+    assert!(
+        records[first..=last].iter().all(|r| r.state_t == 7.0),
+        "one state shown until it times out"
+    );
+    // 0.15 s at 20 Hz: at most ≈ 4 frames show the state (one more for
+    // scheduling slack), then the rest are safe.
+    assert!(last - first < 6, "state shown in frames {first}..={last}");
+    assert!(
+        frames as usize - 1 - last >= 6,
+        "safe frames after the timeout"
+    );
+
+    let code = frame_id_code();
+    let lines = sync.sent_lines();
+    for (i, (r, f)) in records.iter().zip(&frames_shown).enumerate() {
+        assert_eq!(code.decode_frame(&f.pixels), Ok(r.frame));
+        let lit = lit_outside_block(&f.pixels);
+        if r.safe_frame {
+            assert!(r.state_t.is_nan());
+            assert_eq!(
+                lit, 0,
+                "safe frame {i} must be black but the frame-id block"
+            );
+            assert!(r.t_state_received.is_none(), "no state shown in frame {i}");
+            assert!(lines[i].starts_with(&format!("FRAME {} -1.000000 ", r.frame)));
+        } else {
+            assert!(lit > 2000, "frame {i} shows the body");
+            assert!(r.t_state_received.is_some());
+        }
+    }
+    // Latency statistics only over frames that showed a state.
+    assert_eq!(
+        summary.latency_state_to_present.count,
+        (last - first + 1) as u64
+    );
+}
+
+#[test]
+fn display_closed_ends_the_run_cleanly() {
+    let rig = Rig::new(Facility::default(), 10);
+    let mut display = SimDisplay::keep_all(W, H).close_after(3);
+    let mut sync = SimSync::new();
+    let summary = driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap();
+    assert_eq!(display.presented(), 3);
+    assert_eq!(summary.frames, 3);
+    let records = rig.records();
+    assert_eq!(
+        records.iter().map(|r| r.frame).collect::<Vec<_>>(),
+        vec![0, 1, 2],
+        "the log holds exactly the presented frames"
+    );
+    assert_eq!(sync.sent_lines().len(), 3);
+    assert_same_summary(&rig.summary_file(), &summary);
+}
+
+#[test]
+fn stop_flag_stops_cleanly() {
+    let rig = Rig::new(
+        Facility {
+            refresh_hz: 30.0,
+            ..Default::default()
+        },
+        1000,
+    );
+    let stop = no_stop();
+    let handle = spawn_run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        stop.clone(),
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let stopped_at = Instant::now();
+    stop.store(true, Ordering::Relaxed);
+    let (result, display, sync) = handle.join().unwrap();
+    assert!(
+        stopped_at.elapsed() < Duration::from_secs(2),
+        "run took {:?} to stop",
+        stopped_at.elapsed()
+    );
+    let summary = result.unwrap();
+    let n = display.presented();
+    assert!(n > 0 && n < 1000, "{n} frames");
+    assert_eq!(summary.frames, n);
+    assert_eq!(sync.sent_lines().len() as u64, n);
+    let records = rig.records();
+    assert_eq!(records.len() as u64, n, "every presented frame logged");
+    assert_eq!(
+        records.iter().map(|r| r.frame).collect::<Vec<_>>(),
+        (0..n).collect::<Vec<_>>()
+    );
+    assert_same_summary(&rig.summary_file(), &summary);
+}
+
+#[test]
+fn bad_calibration_fails_before_anything_is_shown() {
+    // (file name, content or None for the flat-field case, text the error
+    // must contain besides the file name)
+    let bad_luts = [
+        (
+            "nonmonotone.csv",
+            "drive_level,radiance_w_m2_sr\n0,0.001\n128,0.2\n200,0.1\n255,0.5\n",
+            "line 4",
+        ),
+        (
+            "nan.csv",
+            "drive_level,radiance_w_m2_sr\n0,0.001\n128,NaN\n255,0.5\n",
+            "line 3",
+        ),
+    ];
+    for (name, content, detail) in bad_luts {
+        let rig = Rig::new(
+            Facility {
+                lut: name,
+                ..Default::default()
+            },
+            5,
+        );
+        std::fs::write(rig.path(name), content).unwrap();
+        check_fails_before_presenting(&rig, name, detail);
+    }
+
+    let rig = Rig::new(
+        Facility {
+            flat_field: Some("flat.tif"),
+            ..Default::default()
+        },
+        5,
+    );
+    FlatField::uniform(W / 2, H)
+        .save(rig.path("flat.tif"))
+        .unwrap();
+    check_fails_before_presenting(&rig, "flat.tif", "160×240");
+}
+
+fn check_fails_before_presenting(rig: &Rig, file: &str, detail: &str) {
+    let mut display = SimDisplay::keep_all(W, H);
+    let mut sync = SimSync::new();
+    let err = driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains(file) && err.contains(detail),
+        "{file}: error should name the file and {detail:?}: {err}"
+    );
+    assert_eq!(display.presented(), 0, "{file}: nothing presented");
+    assert!(sync.exchange.is_empty(), "{file}: no sync line");
+    assert!(!rig.path("frames.jsonl").exists(), "{file}: no log started");
+}
+
+// ---------------------------------------------------------------------------
+// 5. The binary.
+
+fn optistim() -> std::process::Command {
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c
+}
+
+#[test]
+fn cli_runs_the_bundled_facility() {
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("f.jsonl");
+    let summary = tmp.path().join("s.json");
+    let out = optistim()
+        .args(["run", "configs/facility.toml", "--frames", "3", "--log"])
+        .arg(&log)
+        .arg("--summary")
+        .arg(&summary)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let records = read_records(&log).unwrap();
+    assert_eq!(records.len(), 3);
+    assert_eq!(
+        records.iter().map(|r| r.frame).collect::<Vec<_>>(),
+        vec![0, 1, 2]
+    );
+    let lut_sha = sha256_hex(
+        &std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("calib/example_lut.csv"))
+            .unwrap(),
+    );
+    assert!(records.iter().all(|r| r.lut_sha256 == lut_sha));
+    let s: Summary = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+    assert_eq!(s.frames, 3);
+}
+
+#[test]
+fn cli_bad_facility_file_is_a_one_line_error_naming_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bad = tmp.path().join("broken_facility.toml");
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/facility.toml"),
+    )
+    .unwrap()
+    .replace("transmission = 0.85", "transmission = 1.7");
+    std::fs::write(&bad, text).unwrap();
+    let missing = tmp.path().join("no_such_facility.toml");
+    for (path, key) in [
+        (&bad, "collimator.transmission"),
+        (&missing, "no_such_facility.toml"),
+    ] {
+        let out = optistim()
+            .arg("run")
+            .arg(path)
+            .args(["--frames", "1", "--log"])
+            .arg(tmp.path().join("f.jsonl"))
+            .arg("--summary")
+            .arg(tmp.path().join("s.json"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{}", path.display());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert_eq!(lines.len(), 1, "one line expected: {stderr}");
+        assert!(
+            lines[0].contains(&path.display().to_string()) && lines[0].contains(key),
+            "{stderr}"
+        );
+        assert!(!tmp.path().join("f.jsonl").exists());
+    }
+}
