@@ -21,10 +21,16 @@ fn constant_displacement_scales_the_flux_as_the_radius_squared() {
     for alpha in [0.0, 60.0, 120.0] {
         let plain = Setup::new(model, alpha, 1e5, 200.0);
         let mut raised = Setup::new(model, alpha, 1e5, 200.0);
-        raised.extra_body = format!("displacement_map = {{ path = \"{}\", scale = 40.0 }}", map.display());
+        raised.extra_body = format!(
+            "displacement_map = {{ path = \"{}\", scale = 40.0 }}",
+            map.display()
+        );
         let ratio = irradiance(&raised) / irradiance(&plain);
         let expected = (1010.0f64 / 1000.0).powi(2);
-        assert!((ratio / expected - 1.0).abs() < 2e-4, "α={alpha}: {ratio} vs {expected}");
+        assert!(
+            (ratio / expected - 1.0).abs() < 2e-4,
+            "α={alpha}: {ratio} vs {expected}"
+        );
     }
 }
 
@@ -33,7 +39,9 @@ fn a_flat_normal_map_leaves_the_image_unchanged() {
     let dir = tempfile::tempdir().unwrap();
     let map = dir.path().join("normals.png");
     // Tangent-space (0, 0, 1) in 16-bit: (32768, 32768, 65535) ≈ (1.5e-5, 1.5e-5, 1).
-    let img = image::ImageBuffer::<image::Rgb<u16>, _>::from_fn(64, 32, |_, _| image::Rgb([32768u16, 32768, 65535]));
+    let img = image::ImageBuffer::<image::Rgb<u16>, _>::from_fn(64, 32, |_, _| {
+        image::Rgb([32768u16, 32768, 65535])
+    });
     img.save(&map).unwrap();
     let model = "{ model = \"oren_nayar\", albedo = 0.15, roughness = 0.3 }";
     let plain = Setup::new(model, 45.0, 1e4, 150.0);

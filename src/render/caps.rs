@@ -197,8 +197,13 @@ fn project(frame: &Frame, theta: f64, phi: f64) -> Option<(f64, f64)> {
 impl Frame<'_> {
     #[inline]
     fn theta(&self, t: f64) -> f64 {
+        // Rows crowd toward both ends of the θ range (a sine stretching,
+        // dθ/dt ∝ 1 − cos 2πt), where the lune's φ width changes like a
+        // square root at finite range; the midpoint rule in θ then keeps
+        // its order up to the tips of a crescent.
         let lo = self.lune.theta_min;
-        lo + t * (self.lune.theta_max() - lo)
+        let stretched = t - (std::f64::consts::TAU * t).sin() / std::f64::consts::TAU;
+        lo + stretched * (self.lune.theta_max() - lo)
     }
 
     #[inline]
@@ -330,8 +335,6 @@ impl Frame<'_> {
         let cell = leaf.cell;
         let dt = (cell.t1 - cell.t0) / leaf.n_t as f64;
         let ds = (cell.s1 - cell.s0) / leaf.n_s as f64;
-        let span_theta = self.lune.theta_max() - self.lune.theta_min;
-        let d_theta = dt * span_theta;
         let alpha = self.lune.alpha;
         let (sin_a, cos_a) = alpha.sin_cos();
         let [xb, yb, zb] = self.axes_body;
@@ -350,15 +353,16 @@ impl Frame<'_> {
             std::mem::swap(upper, lower);
             let t_next = cell.t0 + (a + 1) as f64 * dt;
             self.corner_row(self.theta(t_next), cell.s0, ds, leaf.n_s, lower);
-            let tc = cell.t0 + (a as f64 + 0.5) * dt;
-            let theta = self.theta(tc);
+            let theta0 = self.theta(cell.t0 + a as f64 * dt);
+            let theta1 = self.theta(cell.t0 + (a + 1) as f64 * dt);
+            let d_theta = theta1 - theta0;
+            let theta = 0.5 * (theta0 + theta1);
             let (st, ct) = theta.sin_cos();
             let (lo, hi) = self.lune.phi_range(st);
             if hi <= lo {
                 continue;
             }
             let d_phi = ds * (hi - lo);
-            let (theta0, theta1) = (theta - 0.5 * d_theta, theta + 0.5 * d_theta);
             let w_theta = match self.weight {
                 Weight::Mu0Mu => closed_form::int_sin3(theta0, theta1),
                 Weight::Mu | Weight::LommelSeeliger => closed_form::int_sin2(theta0, theta1),
