@@ -113,3 +113,34 @@ fn phase_laws_hold_at_1e5_radii_in_distant_mode() {
         assert!(err.abs() < 1e-4, "α={deg}°: {err:e}");
     }
 }
+
+#[test]
+fn spectral_hapke_sub_bands_add_up_to_the_flat_band() {
+    // A w(λ) table that is constant is "spectrally varying" to the planner,
+    // so it is rendered in ~10 nm sub-bands; the sum over sub-bands must
+    // equal the single-band render of the same constant w.
+    let params = "b = 0.187, c = 0.273, theta_bar = 0.2321, h_s = 0.083, b_s0 = 1.0";
+    let flat = format!("{{ model = \"hapke\", w = 0.526, {params} }}");
+    let table = format!("{{ model = \"hapke\", w = [[400.0, 0.526], [900.0, 0.526]], {params} }}");
+    let e = |model: &str| {
+        let scene = Setup::new(model, 50.0, 1e4, 120.0).scene();
+        let images = render(&scene);
+        (
+            irradiance_from_image(&scene, &images.radiance),
+            images.summary.sub_bands,
+            images.summary.total_electrons,
+        )
+    };
+    let (e_flat, n_flat, el_flat) = e(&flat);
+    let (e_table, n_table, el_table) = e(&table);
+    assert_eq!(n_flat, 1);
+    assert!(n_table >= 30, "{n_table} sub-bands");
+    assert!(
+        ((e_table - e_flat) / e_flat).abs() < 1e-6,
+        "{e_table} vs {e_flat}"
+    );
+    assert!(
+        ((el_table - el_flat) / el_flat).abs() < 1e-5,
+        "{el_table} vs {el_flat}"
+    );
+}

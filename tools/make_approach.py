@@ -2,7 +2,7 @@
 """Write the bundled Moon-approach trajectory (configs/moon_approach.csv).
 
 A straight approach along the world -z axis from 400 000 km to 60 000 km in
-10 s of facility time (600 states at 60 Hz), the camera boresight (+z)
+5 s of facility time (300 states at 60 Hz), the camera boresight (+z)
 sweeping 0.5 deg in yaw so the Moon drifts across the screen, the Sun at
 60 deg phase. Units as in the scene files: m, s, scalar-first quaternions
 rotating camera vectors into the world frame.
@@ -10,7 +10,7 @@ rotating camera vectors into the world frame.
 import math
 import sys
 
-N = 600
+N = 300
 RATE = 60.0
 R0, R1 = 4.0e8, 6.0e7
 AU = 1.495978707e11

@@ -88,7 +88,14 @@ impl Lune {
             } else if sin_theta <= k {
                 0.0
             } else {
-                (k / sin_theta).min(1.0).acos()
+                let x = k / sin_theta;
+                if x < 1e-3 {
+                    // acos x = π/2 − x − x³/6 − 3x⁵/40 − …, next term < 1e-21.
+                    let x2 = x * x;
+                    std::f64::consts::FRAC_PI_2 - x * (1.0 + x2 * (1.0 / 6.0 + x2 * 3.0 / 40.0))
+                } else {
+                    x.min(1.0).acos()
+                }
             }
         };
         (a(self.k_view), a(self.k_sun))
