@@ -28,7 +28,7 @@ use crate::scene::maps::lat_lon;
 use crate::scene::{Body, EquirectMap, Pinhole};
 
 /// Largest projected size [px] of a leaf cell before it is cut into caps.
-pub const LEAF_CELL_PX: f64 = 12.0;
+pub const LEAF_CELL_PX: f64 = 48.0;
 const MAX_DEPTH: u32 = 48;
 
 /// Which closed-form weight a model is integrated against.

@@ -54,7 +54,7 @@ impl Default for RenderSettings {
     fn default() -> Self {
         Self {
             caps_per_pixel: None,
-            min_caps: 64,
+            min_caps: 128,
             geometry: GeometryMode::Exact,
             sub_bands: None,
             texture_samples: 2,
