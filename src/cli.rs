@@ -177,16 +177,38 @@ pub fn bench(
 }
 
 /// Arguments of `optistim run`.
+#[derive(clap::Args)]
 pub struct RunArgs {
+    /// Facility file (TOML).
     pub facility: std::path::PathBuf,
+    /// Replay this trajectory (default: the facility file's).
+    #[arg(long, conflicts_with = "listen")]
     pub trajectory: Option<std::path::PathBuf>,
+    /// Closed loop: receive states on udp://HOST:PORT.
+    #[arg(long)]
     pub listen: Option<String>,
+    /// Closed loop: accept datagrams only from this address (port 0: any
+    /// port of that host).
+    #[arg(long, default_value = "127.0.0.1:0")]
     pub sender: String,
+    /// `sim` (in memory) or `window` (full-screen X11).
+    #[arg(long, default_value = "sim")]
     pub display: String,
+    /// `sim`, `none`, or a serial device path (default: the facility
+    /// file's `sync.port`, else `sim`).
+    #[arg(long)]
     pub serial: Option<String>,
+    /// Stop after N frames.
+    #[arg(long)]
     pub frames: Option<u64>,
+    /// Frame log (JSON lines, appended).
+    #[arg(long, default_value = "out/frames.jsonl")]
     pub log: std::path::PathBuf,
+    /// Run summary (JSON).
+    #[arg(long, default_value = "out/run_summary.json")]
     pub summary: std::path::PathBuf,
+    /// Write the last frames shown on the simulated display as PNG here.
+    #[arg(long)]
     pub dump: Option<std::path::PathBuf>,
 }
 

@@ -20,39 +20,7 @@ struct Args {
 enum Command {
     /// Drive the facility: states in, calibrated frames on the screen,
     /// serial sync, frame log.
-    Run {
-        /// Facility file (TOML).
-        facility: PathBuf,
-        /// Replay this trajectory (default: the facility file's).
-        #[arg(long, conflicts_with = "listen")]
-        trajectory: Option<PathBuf>,
-        /// Closed loop: receive states on udp://HOST:PORT.
-        #[arg(long)]
-        listen: Option<String>,
-        /// Closed loop: accept datagrams only from this address (port 0:
-        /// any port of that host).
-        #[arg(long, default_value = "127.0.0.1:0")]
-        sender: String,
-        /// `sim` (in memory) or `window` (full-screen X11).
-        #[arg(long, default_value = "sim")]
-        display: String,
-        /// `sim`, `none`, or a serial device path (default: the facility
-        /// file's `sync.port`, else `sim`).
-        #[arg(long)]
-        serial: Option<String>,
-        /// Stop after N frames.
-        #[arg(long)]
-        frames: Option<u64>,
-        /// Frame log (JSON lines, appended).
-        #[arg(long, default_value = "out/frames.jsonl")]
-        log: PathBuf,
-        /// Run summary (JSON).
-        #[arg(long, default_value = "out/run_summary.json")]
-        summary: PathBuf,
-        /// Write the last frames shown on the simulated display as PNG here.
-        #[arg(long)]
-        dump: Option<PathBuf>,
-    },
+    Run(cli::RunArgs),
     /// Render a scene file to radiance.tiff, electrons.tiff, dn.png and
     /// summary.json.
     Render {
@@ -117,29 +85,7 @@ fn main() -> ExitCode {
         .init();
     let args = Args::parse();
     let result = match args.command {
-        Command::Run {
-            facility,
-            trajectory,
-            listen,
-            sender,
-            display,
-            serial,
-            frames,
-            log,
-            summary,
-            dump,
-        } => cli::run(&cli::RunArgs {
-            facility,
-            trajectory,
-            listen,
-            sender,
-            display,
-            serial,
-            frames,
-            log,
-            summary,
-            dump,
-        }),
+        Command::Run(args) => cli::run(&args),
         Command::Render {
             scene,
             out,
