@@ -18,23 +18,6 @@ pub fn write_f32_tiff(path: &Path, width: usize, height: usize, data: &[f32]) ->
         .map_err(|e| Error::parse(path, e.to_string()))
 }
 
-/// Read a single-channel f32 TIFF written by [`write_f32_tiff`].
-pub fn read_f32_tiff(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut decoder = tiff::decoder::Decoder::new(std::io::BufReader::new(file))
-        .map_err(|e| Error::parse(path, e.to_string()))?;
-    let (w, h) = decoder
-        .dimensions()
-        .map_err(|e| Error::parse(path, e.to_string()))?;
-    match decoder
-        .read_image()
-        .map_err(|e| Error::parse(path, e.to_string()))?
-    {
-        tiff::decoder::DecodingResult::F32(v) => Ok((w as usize, h as usize, v)),
-        _ => Err(Error::parse(path, "not a 32-bit float image")),
-    }
-}
-
 /// Write a 16-bit grey PNG.
 pub fn write_u16_png(path: &Path, width: usize, height: usize, data: &[u16]) -> Result<()> {
     let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
