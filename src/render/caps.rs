@@ -16,6 +16,13 @@
 //! models are exact per cap in the distant limit; for the other models and at
 //! finite distance the ratio is smooth and the rule is second order in the
 //! cap size.
+//!
+//! Gridding. A cap's footprint is the quadrilateral of its projected
+//! corners, shared with its neighbours; its PF_i is split over the pixels by
+//! the exact area of the footprint in each. With an albedo map, each cap
+//! takes k×k map samples and its PF_i is split over the k×k parts of its
+//! footprint in proportion to them (the map varies at pixel scale, the BRDF
+//! does not).
 
 use glam::DVec3;
 
@@ -125,8 +132,8 @@ pub struct Frame<'a> {
     pub camera: &'a Pinhole,
     /// Lester axes in camera coordinates.
     pub axes_cam: [DVec3; 3],
-    /// Camera-frame position of the camera relative to the body centre... as
-    /// seen from the camera: P_cam = r n_cam − camera_cam.
+    /// The camera's position relative to the body centre, rotated into the
+    /// camera frame, so a surface point is at P_cam = r n_cam − camera_cam.
     pub camera_cam: DVec3,
     /// Lester axes in body-fixed coordinates (for maps).
     pub axes_body: [DVec3; 3],
