@@ -719,40 +719,63 @@ impl Polygon {
 }
 
 /// Twice the signed area of the part of a convex polygon with coordinate
-/// `axis` ≤ `at`, accumulated edge by edge without building the clipped
-/// polygon.
+/// `AXIS` (0: x, 1: y) ≤ `at`, accumulated edge by edge without building
+/// the clipped polygon.
 #[inline]
-fn half_plane_area2(v: &[(f64, f64)], axis: usize, at: f64) -> f64 {
-    let coord = |p: (f64, f64)| if axis == 0 { p.0 } else { p.1 };
+fn half_plane_area2<const AXIS: usize>(v: &[(f64, f64)], at: f64) -> f64 {
+    let coord = |p: (f64, f64)| if AXIS == 0 { p.0 } else { p.1 };
     let cross = |p: (f64, f64), q: (f64, f64)| p.0 * q.1 - q.0 * p.1;
     let lerp = |p: (f64, f64), q: (f64, f64)| {
         let t = (at - coord(p)) / (coord(q) - coord(p));
         (p.0 + t * (q.0 - p.0), p.1 + t * (q.1 - p.1))
     };
     let mut acc = 0.0;
-    let (mut exit, mut enter) = (None, None);
+    let (mut exit, mut enter) = ((0.0, 0.0), (0.0, 0.0));
+    let mut cut = false;
     let n = v.len();
     for k in 0..n {
-        let (p, q) = (v[k], v[(k + 1) % n]);
+        let (p, q) = (v[k], v[if k + 1 == n { 0 } else { k + 1 }]);
         match (coord(p) <= at, coord(q) <= at) {
             (true, true) => acc += cross(p, q),
             (true, false) => {
                 let i = lerp(p, q);
                 acc += cross(p, i);
-                exit = Some(i);
+                exit = i;
+                cut = true;
             }
             (false, true) => {
                 let i = lerp(p, q);
                 acc += cross(i, q);
-                enter = Some(i);
+                enter = i;
             }
             (false, false) => {}
         }
     }
-    if let (Some(a), Some(b)) = (exit, enter) {
-        acc += cross(a, b);
+    if cut {
+        acc += cross(exit, enter);
     }
     acc
+}
+
+/// The part of a quadrilateral with x ≤ `at` (at most 5 vertices).
+#[inline]
+fn clip_quad_left(quad: &[(f64, f64); 4], at: f64) -> ([(f64, f64); 6], usize) {
+    let mut out = [(0.0, 0.0); 6];
+    let mut n = 0;
+    for k in 0..4 {
+        let (p, q) = (quad[k], quad[(k + 1) & 3]);
+        let (ip, iq) = (p.0 <= at, q.0 <= at);
+        if ip {
+            out[n] = p;
+            n += 1;
+        }
+        if ip != iq {
+            let t = (at - p.0) / (q.0 - p.0);
+            out[n] = (at, p.1 + t * (q.1 - p.1));
+            n += 1;
+        }
+    }
+    (out, n)
 }
 
 #[inline]
@@ -783,12 +806,11 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
         add(buf, roi, i0, j0, value);
         return;
     }
-    let mut poly = Polygon {
-        v: [(0.0, 0.0); 8],
-        n: 4,
-    };
-    poly.v[..4].copy_from_slice(quad);
-    let area = poly.area();
+    let signed2 = (quad[0].0 * quad[1].1 - quad[1].0 * quad[0].1)
+        + (quad[1].0 * quad[2].1 - quad[2].0 * quad[1].1)
+        + (quad[2].0 * quad[3].1 - quad[3].0 * quad[2].1)
+        + (quad[3].0 * quad[0].1 - quad[0].0 * quad[3].1);
+    let area = 0.5 * signed2.abs();
     if !(area > 1e-12 * (x1 - x0 + y1 - y0).powi(2)) {
         let cx = 0.25 * (quad[0].0 + quad[1].0 + quad[2].0 + quad[3].0);
         let cy = 0.25 * (quad[0].1 + quad[1].1 + quad[2].1 + quad[3].1);
@@ -800,21 +822,17 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
         // At most 2×2 pixels: inclusion–exclusion on one vertical and one
         // horizontal grid line.
         let (xs, ys) = ((i0 + 1) as f64, (j0 + 1) as f64);
-        let sign = if half_plane_area2(quad, 0, f64::INFINITY) < 0.0 {
-            -0.5
-        } else {
-            0.5
-        };
+        let sign = 0.5f64.copysign(signed2);
         let a_left = if i1 > i0 {
-            sign * half_plane_area2(quad, 0, xs)
+            sign * half_plane_area2::<0>(quad, xs)
         } else {
             area
         };
         let (a_top, a_left_top) = if j1 > j0 {
-            let top = sign * half_plane_area2(quad, 1, ys);
+            let top = sign * half_plane_area2::<1>(quad, ys);
             let left_top = if i1 > i0 {
-                let left = poly.clip(0, xs, true);
-                sign * half_plane_area2(&left.v[..left.n], 1, ys)
+                let (left, n) = clip_quad_left(quad, xs);
+                sign * half_plane_area2::<1>(&left[..n], ys)
             } else {
                 top
             };
@@ -835,6 +853,11 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
         }
         return;
     }
+    let mut poly = Polygon {
+        v: [(0.0, 0.0); 8],
+        n: 4,
+    };
+    poly.v[..4].copy_from_slice(quad);
     // Larger footprints: clip column by column, then row by row.
     let mut rest = poly;
     for i in i0..=i1 {
