@@ -170,7 +170,17 @@ impl EquirectMap {
         let y0 = y.floor().min((self.height - 2) as f64);
         let (tx, ty) = (x - x0, y - y0);
         let w = self.width as i64;
-        let i0 = (x0 as i64).rem_euclid(w) as usize;
+        let xi = x0 as i64;
+        // Samples stay within a few texels of [0, W): wrap without a division.
+        let i0 = if xi < 0 && xi >= -w {
+            (xi + w) as usize
+        } else if xi >= w && xi < 2 * w {
+            (xi - w) as usize
+        } else if (0..w).contains(&xi) {
+            xi as usize
+        } else {
+            xi.rem_euclid(w) as usize
+        };
         let i1 = if i0 + 1 == self.width { 0 } else { i0 + 1 };
         let r0 = y0 as usize * self.width;
         let r1 = r0 + self.width;
