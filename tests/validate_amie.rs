@@ -4,17 +4,10 @@
 //! content (lit limb of 00208_00030, eclipse sliver of 00101_00010).
 #![allow(clippy::needless_range_loop)]
 
+mod common;
+use common::{IMG1, IMG2};
 use optistim::validate::amie::{self, AmieCamera, AmieObservation};
 use optistim::validate::Raster;
-
-const IMG1: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/data/amie/AMI_EE3_040819_00208_00030.IMG"
-);
-const IMG2: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/data/amie/AMI_EE3_041028_00101_00010.IMG"
-);
 
 fn load(p: &str) -> AmieObservation {
     amie::load(p).unwrap()

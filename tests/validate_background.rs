@@ -1,18 +1,11 @@
 //! Background removal on a synthetic frame with known dark ramp and halo,
 //! and on the two real AMIE frames.
 
+mod common;
+use common::{IMG1, IMG2};
 use optistim::validate::amie;
 use optistim::validate::background::{remove_background, BackgroundParams, Disk};
 use optistim::validate::Raster;
-
-const IMG1: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/data/amie/AMI_EE3_040819_00208_00030.IMG"
-);
-const IMG2: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/data/amie/AMI_EE3_041028_00101_00010.IMG"
-);
 
 /// Deterministic pseudo-random noise in [-1, 1).
 fn noise(i: usize) -> f64 {

@@ -1,16 +1,9 @@
 //! PDS3 label parser and AMIE image reader, on the real SMART-1 files and on
 //! small hand-written labels (syntax corners, truncated and foreign files).
 
+mod common;
+use common::{IMG1, IMG2};
 use optistim::validate::pds3::{read_image, Label, Value};
-
-const IMG1: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/data/amie/AMI_EE3_040819_00208_00030.IMG"
-);
-const IMG2: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/data/amie/AMI_EE3_041028_00101_00010.IMG"
-);
 
 #[test]
 fn parses_the_amie_label() {

@@ -2,17 +2,11 @@
 //! both flight images, against the reference paper's numbers
 //! (docs/VALIDATION.md).
 
+mod common;
+use common::{IMG1, IMG2};
 use optistim::validate::compare::{self, ValidationOptions, ValidationReport};
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/data");
-const IMG1: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/data/amie/AMI_EE3_040819_00208_00030.IMG"
-);
-const IMG2: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/data/amie/AMI_EE3_041028_00101_00010.IMG"
-);
 
 fn run(img: &str, model: &str) -> ValidationReport {
     let r = compare::validate_amie(img, model, &ValidationOptions::new(DATA)).unwrap();

@@ -197,3 +197,14 @@ pub fn sun_at_body(scene: &Scene, images: &SceneImages) -> f64 {
     let d = (scene.state.sun_position - scene.state.body_position).length();
     images.summary.band_irradiance_1au_w_m2 * (AU / d).powi(2)
 }
+
+/// The paper's AMIE image (phase 105°, 30 ms).
+pub const IMG1: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/data/amie/AMI_EE3_040819_00208_00030.IMG"
+);
+/// The eclipse AMIE image (phase 9°, 10 ms).
+pub const IMG2: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/data/amie/AMI_EE3_041028_00101_00010.IMG"
+);
