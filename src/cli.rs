@@ -15,7 +15,7 @@ use optistim::facility::driver::{self, RunPlan, StateSource};
 use optistim::facility::serial::{SerialOptions, SerialPortSync, SimSync, SyncPort};
 use optistim::facility::trajectory::Trajectory;
 use optistim::render::detector::{render_scene, PixelGeometry};
-use optistim::render::{output, Renderer};
+use optistim::render::{output, Interior, Renderer};
 use optistim::scene::Scene;
 
 /// `optistim render`.
@@ -49,7 +49,9 @@ pub fn render(scene_path: &Path, out: &Path, caps_per_pixel: Option<f64>) -> Res
 #[derive(Serialize)]
 struct BenchRow {
     phase_deg: f64,
+    interior: Interior,
     caps_per_pixel: f64,
+    interior_pixels: usize,
     caps: u64,
     median_ms: f64,
     p90_ms: f64,
@@ -93,9 +95,20 @@ pub fn bench(
     scene_path: &Path,
     phases: &[f64],
     densities: &[f64],
+    interior: &[String],
     repeats: usize,
     json: Option<&Path>,
 ) -> Result<()> {
+    let modes = interior
+        .iter()
+        .map(|m| match m.as_str() {
+            "pixels" => Ok(Interior::Pixels),
+            "caps" => Ok(Interior::Caps),
+            other => Err(anyhow::anyhow!(
+                "--interior: `{other}`: expected pixels or caps"
+            )),
+        })
+        .collect::<Result<Vec<_>>>()?;
     let base = Scene::from_file(scene_path)?;
     let pin = base.camera.pinhole.clone();
     let mut renderer = Renderer::new(pin.clone());
@@ -107,8 +120,8 @@ pub fn bench(
         pin.height,
         base.body.reflectance.name()
     );
-    println!("| phase [deg] | caps/px | caps | median [ms] | p90 [ms] | flux error | pixel err p50 | p99 | max |");
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("| phase [deg] | interior | caps/px | caps | interior px | median [ms] | p90 [ms] | flux error | pixel err p50 | p99 | max |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for &phase in phases {
         let mut scene = base.clone();
         at_phase(&mut scene, phase);
@@ -117,20 +130,27 @@ pub fn bench(
         let mut settings = scene.render.clone();
         settings.caps_per_pixel = Some(ref_density);
         settings.min_caps = settings.min_caps.max(256);
+        settings.interior = Interior::Caps;
         renderer.render_flux(&scene.body, &scene.state, &settings, None);
         let reference: Vec<f32> = renderer.flux().to_vec();
         let ref_total: f64 = reference.iter().map(|&v| v as f64).sum();
         let ref_peak = reference.iter().cloned().fold(0.0f32, f32::max) as f64;
-        for &density in densities {
+        for (&mode, &density) in modes
+            .iter()
+            .flat_map(|m| densities.iter().map(move |d| (m, d)))
+        {
             settings.caps_per_pixel = Some(density);
             settings.min_caps = scene.render.min_caps;
+            settings.interior = mode;
             let mut times = Vec::with_capacity(repeats);
             let mut caps = 0;
+            let mut interior_pixels = 0;
             for _ in 0..repeats.max(1) {
                 let t = Instant::now();
                 let stats = renderer.render_flux(&scene.body, &scene.state, &settings, None);
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 caps = stats.caps;
+                interior_pixels = stats.interior_pixels;
             }
             times.sort_by(f64::total_cmp);
             let flux = renderer.flux();
@@ -145,7 +165,9 @@ pub fn bench(
             errors.sort_by(f64::total_cmp);
             let row = BenchRow {
                 phase_deg: phase,
+                interior: mode,
                 caps_per_pixel: density,
+                interior_pixels,
                 caps,
                 median_ms: percentile(&times, 0.5),
                 p90_ms: percentile(&times, 0.9),
@@ -155,10 +177,12 @@ pub fn bench(
                 pixel_error_max: errors.last().copied().unwrap_or(f64::NAN),
             };
             println!(
-                "| {:.0} | {} | {} | {:.2} | {:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
+                "| {:.0} | {:?} | {} | {} | {} | {:.2} | {:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
                 row.phase_deg,
+                row.interior,
                 row.caps_per_pixel,
                 row.caps,
+                row.interior_pixels,
                 row.median_ms,
                 row.p90_ms,
                 row.flux_error,

@@ -44,6 +44,10 @@ enum Command {
         /// Densities (caps per pixel) to time.
         #[arg(long, value_delimiter = ',', default_value = "0.5,1,1.5,2,3")]
         densities: Vec<f64>,
+        /// Interior integrations to time: `pixels`, `caps` (the reference
+        /// is always the lune's caps alone, at 4× the densest setting).
+        #[arg(long, value_delimiter = ',', default_value = "pixels,caps")]
+        interior: Vec<String>,
         /// Repetitions per point (median reported).
         #[arg(long, default_value_t = 30)]
         repeats: usize,
@@ -95,9 +99,17 @@ fn main() -> ExitCode {
             scene,
             phases,
             densities,
+            interior,
             repeats,
             json,
-        } => cli::bench(&scene, &phases, &densities, repeats, json.as_deref()),
+        } => cli::bench(
+            &scene,
+            &phases,
+            &densities,
+            &interior,
+            repeats,
+            json.as_deref(),
+        ),
         Command::Validate(ValidateCommand::Amie {
             img,
             model,

@@ -1,10 +1,12 @@
 //! Radiometry: how sunlight reaches a surface point and how much of it is
 //! scattered toward the camera.
 //!
+//! - [`fastmath`]: inverse trigonometry for the per-pixel loop;
 //! - [`geometry`]: the photometric angles of one scattering event;
 //! - [`reflectance`]: the reflection models (BRDFs) named in scene files;
 //! - [`spectrum`]: solar spectra, detector response tables and band integrals.
 
+pub mod fastmath;
 pub mod geometry;
 pub mod reflectance;
 pub mod spectrum;

@@ -27,7 +27,9 @@
 use glam::DVec3;
 
 use super::closed_form;
+use super::interior::InteriorMask;
 use super::lune::Lune;
+use crate::radiometry::fastmath;
 use crate::radiometry::reflectance::Reflectance;
 use crate::radiometry::spectrum::AU;
 use crate::radiometry::ScatteringGeometry;
@@ -85,6 +87,8 @@ pub struct Leaf {
     pub cell: Cell,
     pub n_t: u32,
     pub n_s: u32,
+    /// Pixels the leaf's caps may touch.
+    pub rect: Rect,
 }
 
 /// Axis-aligned pixel rectangle [x0, x1) × [y0, y1).
@@ -296,14 +300,20 @@ impl Frame<'_> {
             .ceil()
             .max(min_s)
             .clamp(1.0, 4096.0) as u32;
-        leaves.push(Leaf { cell, n_t, n_s });
         let clamp = |v: f64, hi: f64| v.clamp(0.0, hi) as usize;
-        Some(Rect {
+        let rect = Rect {
             x0: clamp((x0 - margin).floor(), w),
             y0: clamp((y0 - margin).floor(), h),
             x1: clamp((x1 + margin).ceil() + 1.0, w),
             y1: clamp((y1 + margin).ceil() + 1.0, h),
-        })
+        };
+        leaves.push(Leaf {
+            cell,
+            n_t,
+            n_s,
+            rect,
+        });
+        Some(rect)
     }
 
     /// Project one row of cap corners (θ fixed, s from s0 in n steps of
@@ -329,16 +339,10 @@ impl Frame<'_> {
         }
     }
 
-    /// Integrate and grid every cap of a leaf into `buf` (covering `roi`).
-    /// `rows` is scratch space. Returns the sum of the caps' PF (per unit
-    /// solar irradiance at 1 au).
-    pub fn grid_leaf(
-        &self,
-        leaf: &Leaf,
-        buf: &mut [f32],
-        roi: &Rect,
-        rows: &mut [Vec<(f64, f64)>; 2],
-    ) -> f64 {
+    /// Integrate and grid every cap of a leaf into `sink`. `rows` is
+    /// scratch space. Returns the sum of the caps' PF (per unit solar
+    /// irradiance at 1 au) that the sink kept or that fell outside it.
+    pub fn grid_leaf(&self, leaf: &Leaf, sink: &mut Sink, rows: &mut [Vec<(f64, f64)>; 2]) -> f64 {
         let cell = leaf.cell;
         let dt = (cell.t1 - cell.t0) / leaf.n_t as f64;
         let ds = (cell.s1 - cell.s0) / leaf.n_s as f64;
@@ -383,6 +387,10 @@ impl Frame<'_> {
                 // Advance φ by one cap (angle-addition recurrence).
                 (sp, cp) = (sp * cd + cp * sd, cp * cd - sp * sd);
                 let (sp, cp) = (sp_c, cp_c);
+                let quad = [upper[b], upper[b + 1], lower[b + 1], lower[b]];
+                if sink.covers_quad(&quad) {
+                    continue;
+                }
                 // Far-field cosines and the closed-form weight of the cap.
                 let cos_pa = cp * cos_a + sp * sin_a;
                 let mu0_far = st * cp;
@@ -431,24 +439,23 @@ impl Frame<'_> {
                     continue;
                 }
                 total += pf;
-                let quad = [upper[b], upper[b + 1], lower[b + 1], lower[b]];
                 if quad.iter().all(|p| p.0.is_finite()) {
                     if texture.k > 1 {
-                        texture.grid(buf, roi, &quad, pf);
+                        texture.grid(sink, &quad, pf);
                     } else {
-                        grid_quad(buf, roi, &quad, pf);
+                        grid_quad(sink, &quad, pf);
                     }
                 }
             }
         }
-        total
+        total - std::mem::take(&mut sink.skipped)
     }
 
     /// Integrand (per unit solar irradiance at 1 au, without dS) at a cap
     /// centre: f_r μ0 (AU/d_sun)² μ / d_cam² with exact geometry.
     #[allow(clippy::too_many_arguments)]
     #[inline]
-    fn integrand(
+    pub(super) fn integrand(
         &self,
         n_local: DVec3,
         n_body: DVec3,
@@ -495,7 +502,7 @@ impl Frame<'_> {
 
     /// Share of the solar disk lighting a point (Lester coordinates).
     #[inline]
-    fn sun_fraction(&self, p: DVec3) -> f64 {
+    pub(super) fn sun_fraction(&self, p: DVec3) -> f64 {
         match self.occulter {
             None => 1.0,
             Some((centre, radius)) => visible_sun_fraction(
@@ -577,68 +584,15 @@ struct Texture {
 impl Texture {
     /// Sample the map over the cap centred on the body-fixed unit direction
     /// `n` with edge vectors `e1` (along θ) and `e2` (along φ); returns the
-    /// mean. Samples smaller than a texel are bilinear; larger ones average
-    /// the texels of a box of their size (summed-area table).
+    /// mean.
     #[inline]
     fn sample(&mut self, map: &EquirectMap, n: DVec3, e1: DVec3, e2: DVec3, k: usize) -> f64 {
-        let k = k.clamp(1, 4);
-        self.k = k;
-        let cos_lat = (n.x * n.x + n.y * n.y).sqrt();
-        let lat = n.z.clamp(-1.0, 1.0).asin();
-        let lon = n.y.atan2(n.x);
-        let (east, north) = if cos_lat > 1e-9 {
-            let (co, so) = (n.x / cos_lat, n.y / cos_lat);
-            (
-                DVec3::new(-so, co, 0.0),
-                DVec3::new(-n.z * co, -n.z * so, cos_lat),
-            )
-        } else {
-            (DVec3::Y, DVec3::X)
-        };
-        // Texel displacements (x east, y south) across the whole cap.
-        let kx = map.width as f64 / (std::f64::consts::TAU * cos_lat.max(1e-6));
-        let ky = map.height as f64 / std::f64::consts::PI;
-        let a1 = (e1.dot(east) * kx, -e1.dot(north) * ky);
-        let a2 = (e2.dot(east) * kx, -e2.dot(north) * ky);
-        let bx = (a1.0.abs() + a2.0.abs()) / k as f64;
-        let by = (a1.1.abs() + a2.1.abs()) / k as f64;
-        let area = (a1.0 * a2.1 - a1.1 * a2.0).abs() / (k * k) as f64;
-        let shrink = if bx * by > 0.0 {
-            (area / (bx * by)).sqrt()
-        } else {
-            1.0
-        };
-        let (sx, sy) = (bx * shrink, by * shrink);
-        let (x0, y0) = map.texel_of(lat, lon);
-        let mut sum = 0.0;
-        for p in 0..k {
-            let v = (p as f64 + 0.5) / k as f64 - 0.5;
-            for q in 0..k {
-                let u = (q as f64 + 0.5) / k as f64 - 0.5;
-                let x = x0 + a1.0 * v + a2.0 * u;
-                let y = y0 + a1.1 * v + a2.1 * u;
-                let value = if sx <= 1.5 && sy <= 1.5 {
-                    map.sample_texel(x, y)
-                } else {
-                    let (la, lo) = map.lat_lon_of(x, y);
-                    map.box_average(
-                        la,
-                        lo,
-                        0.5 * (1.0 + sx * sx).sqrt(),
-                        0.5 * (1.0 + sy * sy).sqrt(),
-                    )
-                };
-                self.values[p * k + q] = value;
-                sum += value;
-            }
-        }
-        sum / (k * k) as f64
+        Footprint::new(map, n, e1, e2).sample(map, k, &mut self.values, &mut self.k)
     }
-
     /// Grid `pf` over the k×k sub-quadrilaterals of `quad` (corners at
     /// (t0,s0), (t0,s1), (t1,s1), (t1,s0)) in proportion to the samples.
     #[inline]
-    fn grid(&self, buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], pf: f64) {
+    fn grid(&self, sink: &mut Sink, quad: &[(f64, f64); 4], pf: f64) {
         // A cap inside one pixel needs no split.
         let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
         for p in &quad[1..] {
@@ -648,7 +602,7 @@ impl Texture {
             y1 = y1.max(p.1);
         }
         if x0.floor() == x1.floor() && y0.floor() == y1.floor() {
-            add(buf, roi, x0.floor() as i64, y0.floor() as i64, pf);
+            sink.add(x0.floor() as i64, y0.floor() as i64, pf);
             return;
         }
         let k = self.k;
@@ -669,9 +623,104 @@ impl Texture {
             for q in 0..k {
                 let (u0, u1) = (q as f64 * step, (q + 1) as f64 * step);
                 let sub = [at(v0, u0), at(v0, u1), at(v1, u1), at(v1, u0)];
-                grid_quad(buf, roi, &sub, pf * self.values[p * k + q] / sum);
+                grid_quad(sink, &sub, pf * self.values[p * k + q] / sum);
             }
         }
+    }
+}
+
+/// A cap's (or pixel's) footprint on an albedo map: its centre in texel
+/// coordinates and its two edge vectors in texels (x east, y south).
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Footprint {
+    pub x: f64,
+    pub y: f64,
+    pub a1: (f64, f64),
+    pub a2: (f64, f64),
+}
+
+impl Footprint {
+    /// Footprint of the patch centred on the body-fixed unit direction `n`
+    /// with edge vectors `e1`, `e2` (unit-sphere displacements).
+    #[inline]
+    pub(super) fn new(map: &EquirectMap, n: DVec3, e1: DVec3, e2: DVec3) -> Footprint {
+        let cos_lat = (n.x * n.x + n.y * n.y).sqrt();
+        let lat = fastmath::asin(n.z);
+        let lon = fastmath::atan2(n.y, n.x);
+        let (east, north) = if cos_lat > 1e-9 {
+            let (co, so) = (n.x / cos_lat, n.y / cos_lat);
+            (
+                DVec3::new(-so, co, 0.0),
+                DVec3::new(-n.z * co, -n.z * so, cos_lat),
+            )
+        } else {
+            (DVec3::Y, DVec3::X)
+        };
+        let kx = map.width as f64 / (std::f64::consts::TAU * cos_lat.max(1e-6));
+        let ky = map.height as f64 / std::f64::consts::PI;
+        let (x, y) = map.texel_of(lat, lon);
+        Footprint {
+            x,
+            y,
+            a1: (e1.dot(east) * kx, -e1.dot(north) * ky),
+            a2: (e2.dot(east) * kx, -e2.dot(north) * ky),
+        }
+    }
+
+    /// Mean albedo over a pixel's footprint (k×k samples).
+    #[inline]
+    pub(super) fn mean(&self, map: &EquirectMap, k: usize) -> f64 {
+        let mut values = [0.0; 16];
+        let mut k_out = 0;
+        self.sample(map, k, &mut values, &mut k_out)
+    }
+
+    /// k×k samples over the footprint into `values` (k recorded in
+    /// `k_out`); returns their mean. Samples smaller than a texel are
+    /// bilinear; larger ones average the texels of a box of their size.
+    #[inline]
+    pub(super) fn sample(
+        &self,
+        map: &EquirectMap,
+        k: usize,
+        values: &mut [f64; 16],
+        k_out: &mut usize,
+    ) -> f64 {
+        let k = k.clamp(1, 4);
+        *k_out = k;
+        let (a1, a2) = (self.a1, self.a2);
+        let bx = (a1.0.abs() + a2.0.abs()) / k as f64;
+        let by = (a1.1.abs() + a2.1.abs()) / k as f64;
+        let area = (a1.0 * a2.1 - a1.1 * a2.0).abs() / (k * k) as f64;
+        let shrink = if bx * by > 0.0 {
+            (area / (bx * by)).sqrt()
+        } else {
+            1.0
+        };
+        let (sx, sy) = (bx * shrink, by * shrink);
+        let mut sum = 0.0;
+        for p in 0..k {
+            let v = (p as f64 + 0.5) / k as f64 - 0.5;
+            for q in 0..k {
+                let u = (q as f64 + 0.5) / k as f64 - 0.5;
+                let x = self.x + a1.0 * v + a2.0 * u;
+                let y = self.y + a1.1 * v + a2.1 * u;
+                let value = if sx <= 1.5 && sy <= 1.5 {
+                    map.sample_texel(x, y)
+                } else {
+                    let (la, lo) = map.lat_lon_of(x, y);
+                    map.box_average(
+                        la,
+                        lo,
+                        0.5 * (1.0 + sx * sx).sqrt(),
+                        0.5 * (1.0 + sy * sy).sqrt(),
+                    )
+                };
+                values[p * k + q] = value;
+                sum += value;
+            }
+        }
+        sum / (k * k) as f64
     }
 }
 
@@ -778,11 +827,52 @@ fn clip_quad_left(quad: &[(f64, f64); 4], at: f64) -> ([(f64, f64); 6], usize) {
     (out, n)
 }
 
-#[inline]
-fn add(buf: &mut [f32], roi: &Rect, i: i64, j: i64, value: f64) {
-    if i >= roi.x0 as i64 && i < roi.x1 as i64 && j >= roi.y0 as i64 && j < roi.y1 as i64 {
-        let k = (j as usize - roi.y0) * roi.width() + (i as usize - roi.x0);
-        buf[k] += value as f32;
+/// Where gridded caps land: a worker's buffer over the ROI, minus the
+/// pixels integrated per pixel (see [`super::interior`]), whose share of a
+/// cap is dropped and counted in `skipped`.
+pub struct Sink<'a> {
+    pub buf: &'a mut [f32],
+    pub roi: Rect,
+    pub interior: Option<&'a InteriorMask>,
+    /// PF dropped on interior pixels since the last take.
+    pub skipped: f64,
+}
+
+impl Sink<'_> {
+    #[inline]
+    fn add(&mut self, i: i64, j: i64, value: f64) {
+        let roi = &self.roi;
+        if i >= roi.x0 as i64 && i < roi.x1 as i64 && j >= roi.y0 as i64 && j < roi.y1 as i64 {
+            let k = (j as usize - roi.y0) * roi.width() + (i as usize - roi.x0);
+            if self.interior.is_some_and(|m| m.is_interior(k)) {
+                self.skipped += value;
+            } else {
+                self.buf[k] += value as f32;
+            }
+        }
+    }
+
+    /// Whether every pixel a footprint's bounding box touches is interior,
+    /// so the cap can be skipped.
+    #[inline]
+    fn covers_quad(&self, quad: &[(f64, f64); 4]) -> bool {
+        let Some(mask) = self.interior else {
+            return false;
+        };
+        if !quad.iter().all(|p| p.0.is_finite() && p.1.is_finite()) {
+            return false;
+        }
+        let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
+        for p in &quad[1..] {
+            x0 = x0.min(p.0);
+            x1 = x1.max(p.0);
+            y0 = y0.min(p.1);
+            y1 = y1.max(p.1);
+        }
+        if !(x0 >= 0.0 && y0 >= 0.0) {
+            return false;
+        }
+        mask.covers(x0 as usize, y0 as usize, x1 as usize + 1, y1 as usize + 1)
     }
 }
 
@@ -792,7 +882,7 @@ fn add(buf: &mut [f32], roi: &Rect, i: i64, j: i64, value: f64) {
 /// corners, that falls in each. Neighbouring caps share corners, so the
 /// footprints tile the image without gaps or overlaps.
 #[inline]
-fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
+fn grid_quad(sink: &mut Sink, quad: &[(f64, f64); 4], value: f64) {
     let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
     for p in &quad[1..] {
         x0 = x0.min(p.0);
@@ -803,7 +893,7 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
     let (i0, i1) = (x0.floor() as i64, x1.floor() as i64);
     let (j0, j1) = (y0.floor() as i64, y1.floor() as i64);
     if i0 == i1 && j0 == j1 {
-        add(buf, roi, i0, j0, value);
+        sink.add(i0, j0, value);
         return;
     }
     let signed2 = (quad[0].0 * quad[1].1 - quad[1].0 * quad[0].1)
@@ -814,7 +904,7 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
     if !(area > 1e-12 * (x1 - x0 + y1 - y0).powi(2)) {
         let cx = 0.25 * (quad[0].0 + quad[1].0 + quad[2].0 + quad[3].0);
         let cy = 0.25 * (quad[0].1 + quad[1].1 + quad[2].1 + quad[3].1);
-        add(buf, roi, cx.floor() as i64, cy.floor() as i64, value);
+        sink.add(cx.floor() as i64, cy.floor() as i64, value);
         return;
     }
     let per_area = value / area;
@@ -840,15 +930,15 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
         } else {
             (area, a_left)
         };
-        add(buf, roi, i0, j0, a_left_top.max(0.0) * per_area);
+        sink.add(i0, j0, a_left_top.max(0.0) * per_area);
         if i1 > i0 {
-            add(buf, roi, i1, j0, (a_top - a_left_top).max(0.0) * per_area);
+            sink.add(i1, j0, (a_top - a_left_top).max(0.0) * per_area);
         }
         if j1 > j0 {
-            add(buf, roi, i0, j1, (a_left - a_left_top).max(0.0) * per_area);
+            sink.add(i0, j1, (a_left - a_left_top).max(0.0) * per_area);
             if i1 > i0 {
                 let rest = area - a_left - a_top + a_left_top;
-                add(buf, roi, i1, j1, rest.max(0.0) * per_area);
+                sink.add(i1, j1, rest.max(0.0) * per_area);
             }
         }
         return;
@@ -878,7 +968,7 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
                 col_rest
             };
             if cell.n >= 3 {
-                add(buf, roi, i, j, cell.area() * per_area);
+                sink.add(i, j, cell.area() * per_area);
             }
         }
     }
@@ -887,6 +977,16 @@ fn grid_quad(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn grid_into(buf: &mut [f32], roi: &Rect, quad: &[(f64, f64); 4], value: f64) {
+        let mut sink = Sink {
+            buf,
+            roi: *roi,
+            interior: None,
+            skipped: 0.0,
+        };
+        grid_quad(&mut sink, quad, value);
+    }
 
     #[test]
     fn inline_cap_weights_equal_the_closed_forms() {
@@ -943,7 +1043,7 @@ mod tests {
         // A unit square centred on a pixel corner lands a quarter in each.
         let mut buf = vec![0.0f32; 64];
         let q = [(2.5, 2.5), (3.5, 2.5), (3.5, 3.5), (2.5, 3.5)];
-        grid_quad(&mut buf, &roi, &q, 1.0);
+        grid_into(&mut buf, &roi, &q, 1.0);
         for k in [2 * 8 + 2, 2 * 8 + 3, 3 * 8 + 2, 3 * 8 + 3] {
             assert!((buf[k] - 0.25).abs() < 1e-6);
         }
@@ -953,14 +1053,14 @@ mod tests {
             [(3.2, 3.9), (4.1, 3.05), (4.3, 3.9), (3.4, 4.4)],
         ] {
             let mut buf = vec![0.0f32; 64];
-            grid_quad(&mut buf, &roi, &quad, 1.0);
+            grid_into(&mut buf, &roi, &quad, 1.0);
             let sum: f32 = buf.iter().sum();
             assert!((sum - 1.0).abs() < 1e-6, "{sum}");
         }
         // Straddling the image edge keeps only the inside share.
         let mut buf = vec![0.0f32; 64];
         let q = [(-0.5, 4.0), (0.5, 4.0), (0.5, 5.0), (-0.5, 5.0)];
-        grid_quad(&mut buf, &roi, &q, 1.0);
+        grid_into(&mut buf, &roi, &q, 1.0);
         let sum: f32 = buf.iter().sum();
         assert!((sum - 0.5).abs() < 1e-6);
     }

@@ -13,6 +13,7 @@
 pub mod caps;
 pub mod closed_form;
 pub mod detector;
+pub mod interior;
 pub mod lune;
 pub mod output;
 
@@ -22,7 +23,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::scene::{Body, Pinhole, State};
-use caps::{Cell, Frame, Leaf, Rect, Weight};
+use caps::{Cell, Frame, Leaf, Rect, Sink, Weight};
+use interior::{InteriorMask, PixelRays};
 use lune::Lune;
 
 /// How finely the body is sampled (the `[render]` table of a scene file).
@@ -45,6 +47,21 @@ pub struct RenderSettings {
     /// pixel scale while the BRDF does not, so each cap's PF is split over
     /// k×k parts of its footprint by the map alone.
     pub texture_samples: usize,
+    /// `pixels` (default): pixels whose whole preimage is lit and visible
+    /// are integrated per pixel ([`interior`]), the rest by the lune's caps;
+    /// `caps`: the lune's caps everywhere.
+    pub interior: Interior,
+}
+
+/// How the pixels inside the lit disk are integrated.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Interior {
+    /// One cap per pixel: the pixel's preimage.
+    #[default]
+    Pixels,
+    /// The lune's caps, gridded exactly.
+    Caps,
 }
 
 /// Default caps per pixel along each axis.
@@ -58,6 +75,7 @@ impl Default for RenderSettings {
             geometry: GeometryMode::Exact,
             sub_bands: None,
             texture_samples: 2,
+            interior: Interior::Pixels,
         }
     }
 }
@@ -116,6 +134,8 @@ pub struct RenderStats {
     pub total_flux: f64,
     /// Phase angle at the body centre [rad].
     pub phase_angle: f64,
+    /// Pixels integrated per pixel (their preimage is the cap).
+    pub interior_pixels: usize,
     /// Pixels that may hold signal.
     #[serde(skip)]
     pub roi: Rect,
@@ -134,6 +154,7 @@ pub struct Renderer {
     leaves: Vec<Leaf>,
     stack: Vec<Cell>,
     chunks: Vec<std::ops::Range<usize>>,
+    interior: InteriorMask,
 }
 
 impl Renderer {
@@ -151,6 +172,7 @@ impl Renderer {
             leaves: Vec::new(),
             stack: Vec::new(),
             chunks: Vec::new(),
+            interior: InteriorMask::default(),
         }
     }
 
@@ -241,11 +263,26 @@ impl Renderer {
                 roi = roi.union(&r);
             }
         }
-        stats.cells = self.leaves.len();
         stats.roi = roi;
         if self.leaves.is_empty() || roi.is_empty() {
             return stats;
         }
+
+        // Interior pixels: classify, and drop the leaves they cover.
+        let rays = match settings.interior {
+            Interior::Pixels => PixelRays::new(&frame),
+            Interior::Caps => None,
+        };
+        let rays = rays.filter(|r| {
+            self.interior.build(&frame, r, roi);
+            self.interior.count() > 0
+        });
+        let mask = rays.as_ref().map(|_| &self.interior);
+        if let Some(m) = mask {
+            self.leaves
+                .retain(|l| !m.covers(l.rect.x0, l.rect.y0, l.rect.x1, l.rect.y1));
+        }
+        stats.cells = self.leaves.len();
 
         // Balance the leaves over the workers by cap count.
         let caps: u64 = self
@@ -278,9 +315,15 @@ impl Renderer {
                 let (buf, rows) = worker;
                 buf.clear();
                 buf.resize(area, 0.0);
+                let mut sink = Sink {
+                    buf,
+                    roi,
+                    interior: mask,
+                    skipped: 0.0,
+                };
                 leaves[range.clone()]
                     .iter()
-                    .map(|leaf| frame.grid_leaf(leaf, buf, &roi, rows))
+                    .map(|leaf| frame.grid_leaf(leaf, &mut sink, rows))
                     .sum::<f64>()
             })
             .sum();
@@ -304,6 +347,10 @@ impl Renderer {
                     }
                 }
             });
+        if let Some(r) = &rays {
+            stats.total_flux += self.interior.integrate(&frame, r, &mut self.flux, w);
+            stats.interior_pixels = self.interior.count();
+        }
         self.dirty = roi;
         stats
     }

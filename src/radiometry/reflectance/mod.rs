@@ -319,6 +319,12 @@ impl Reflectance {
         }
     }
 
+    /// Whether the radiance factor is a ρ + b ρ² in the albedo parameter
+    /// at fixed geometry (all models but Hapke, whose H-functions are not).
+    pub fn is_albedo_quadratic(&self) -> bool {
+        !matches!(self, Reflectance::Hapke(_))
+    }
+
     /// The scene-file name of the model (`model = "..."`).
     pub fn name(&self) -> &'static str {
         match self {

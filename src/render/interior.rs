@@ -1,0 +1,390 @@
+//! Interior pixels: where a pixel's whole preimage on the sphere is lit,
+//! visible and out of any shadow, that preimage is the pixel's cap.
+//!
+//! Its PF is the product rule at the pixel centre: the exact ray–sphere hit
+//! gives the geometry, the albedo is averaged over the preimage (k×k
+//! sub-footprints spanned by the exact tangent vectors of the hit), and the
+//! pixel's solid angle is the weight. One cap lands in one pixel, so no
+//! gridding is needed; this is what makes the facility's frame rate. Pixels
+//! near the limb, the terminator or a shadow edge stay with the lune's caps
+//! and their exact polygon gridding ([`super::caps`]).
+//!
+//! Toward the limb μ ∝ √(distance), which the midpoint rule follows only to
+//! about 1/(96 d²) at d pixels from the limb, worse where μ0 is small too:
+//! pixels closer than [`MIDPOINT_MIN_PX`] take 2×2 Gauss points, and 4×4
+//! where the 2×2 rule moved far from the midpoint or within
+//! [`GAUSS2_MIN_PX`] of the limb.
+//!
+//! The classification is conservative: a pixel is interior only if every
+//! corner of its 3×3 neighbourhood hits the sphere lit and unshadowed, so a
+//! curved boundary cannot slip between the corners of an interior pixel.
+
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+use super::caps::{Footprint, Frame, Rect};
+use crate::scene::EquirectMap;
+
+/// Smallest apparent radius [px] at which interior pixels are worth it.
+pub const MIN_RADIUS_PX: f64 = 12.0;
+/// Distance from the limb [px] from which one point per pixel suffices.
+pub const MIDPOINT_MIN_PX: f64 = 7.0;
+/// Distance from the limb [px] from which 2×2 Gauss points may suffice.
+pub const GAUSS2_MIN_PX: f64 = 1.2;
+/// Largest relative change from the midpoint to the 2×2 rule for which the
+/// 2×2 rule is kept; beyond it, 4×4.
+const GAUSS2_MAX_STEP: f64 = 2e-3;
+/// Which pixels of the ROI are integrated per pixel, with a summed-area
+/// table for rectangle queries. Buffers are reused between frames.
+#[derive(Default)]
+pub struct InteriorMask {
+    roi: Rect,
+    interior: Vec<bool>,
+    /// Count of non-interior pixels over [0, i) × [0, j), (w+1)×(h+1).
+    boundary_sat: Vec<u32>,
+    corner_ok: Vec<bool>,
+    eroded_rows: Vec<bool>,
+    count: usize,
+}
+
+impl InteriorMask {
+    /// Whether ROI-local pixel index `k` is interior.
+    #[inline]
+    pub fn is_interior(&self, k: usize) -> bool {
+        self.interior[k]
+    }
+
+    /// Number of interior pixels.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    /// Whether every pixel of [x0, x1) × [y0, y1) (image coordinates) is
+    /// interior.
+    #[inline]
+    pub fn covers(&self, x0: usize, y0: usize, x1: usize, y1: usize) -> bool {
+        let r = &self.roi;
+        if x0 < r.x0 || y0 < r.y0 || x1 > r.x1 || y1 > r.y1 || x1 <= x0 || y1 <= y0 {
+            return false;
+        }
+        let s = r.width() + 1;
+        let (a, b, c, d) = (x0 - r.x0, x1 - r.x0, y0 - r.y0, y1 - r.y0);
+        let sat = &self.boundary_sat;
+        sat[d * s + b] + sat[c * s + a] == sat[c * s + b] + sat[d * s + a]
+    }
+
+    /// Classify the pixels of `roi` for `frame`.
+    pub fn build(&mut self, frame: &Frame, rays: &PixelRays, roi: Rect) {
+        self.roi = roi;
+        let (w, h) = (roi.width(), roi.height());
+        let cw = w + 1;
+        self.corner_ok.clear();
+        self.corner_ok.resize(cw * (h + 1), false);
+        self.corner_ok
+            .par_chunks_mut(cw)
+            .enumerate()
+            .for_each(|(jj, row)| {
+                let v = (roi.y0 + jj) as f64;
+                for (ii, ok) in row.iter_mut().enumerate() {
+                    *ok = rays.corner_ok(frame, (roi.x0 + ii) as f64, v);
+                }
+            });
+        // Where the lit disk is convex on the image (phase below 90°, no
+        // occulter), a pixel with its four corners inside is inside.
+        // Otherwise a concave boundary could pass between the corners, so
+        // the whole 3×3 neighbourhood's corners must be inside.
+        let reach = if rays.convex { 0 } else { 1 };
+        let ok = &self.corner_ok;
+        self.eroded_rows.clear();
+        self.eroded_rows.resize(w * (h + 1), false);
+        for jj in 0..=h {
+            let row = &ok[jj * cw..(jj + 1) * cw];
+            let out = &mut self.eroded_rows[jj * w..(jj + 1) * w];
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = i >= reach
+                    && i + 1 + reach < cw
+                    && row[i - reach..=i + 1 + reach].iter().all(|&c| c);
+            }
+        }
+        self.interior.clear();
+        self.interior.resize(w * h, false);
+        let e = &self.eroded_rows;
+        for j in reach..h.saturating_sub(reach) {
+            for i in 0..w {
+                self.interior[j * w + i] = (j - reach..=j + 1 + reach).all(|r| e[r * w + i]);
+            }
+        }
+        self.boundary_sat.clear();
+        self.boundary_sat.resize(cw * (h + 1), 0);
+        let mut count = 0;
+        for j in 0..h {
+            let mut run = 0u32;
+            for i in 0..w {
+                let inside = self.interior[j * w + i];
+                count += usize::from(inside);
+                run += u32::from(!inside);
+                self.boundary_sat[(j + 1) * cw + i + 1] = self.boundary_sat[j * cw + i + 1] + run;
+            }
+        }
+        self.count = count;
+    }
+
+    /// Write the flux of every interior pixel into `flux` (the whole image,
+    /// row-major, `width` wide); returns their sum.
+    pub fn integrate(
+        &self,
+        frame: &Frame,
+        rays: &PixelRays,
+        flux: &mut [f32],
+        width: usize,
+    ) -> f64 {
+        let roi = self.roi;
+        let w = roi.width();
+        flux.par_chunks_mut(width)
+            .enumerate()
+            .skip(roi.y0)
+            .take(roi.height())
+            .map(|(j, row)| {
+                let mask = &self.interior[(j - roi.y0) * w..(j - roi.y0 + 1) * w];
+                let mut sum = 0.0;
+                for (ii, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+                    let i = roi.x0 + ii;
+                    let f = rays.pixel_flux(frame, i, j);
+                    row[i] = f as f32;
+                    sum += f;
+                }
+                sum
+            })
+            .sum()
+    }
+}
+
+/// Rays of the pixel grid against the body sphere, in the camera frame.
+pub struct PixelRays {
+    /// Body centre in the camera frame [m].
+    centre: DVec3,
+    radius: f64,
+    /// Camera frame → body-fixed frame.
+    cam_to_body: DMat3,
+    /// Camera frame → Lester frame.
+    cam_to_local: DMat3,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    sin_a: f64,
+    cos_a: f64,
+    camera_local: DVec3,
+    /// Apparent radius [px].
+    radius_px: f64,
+    /// Whether the lit, visible disk is convex on the image.
+    pub convex: bool,
+}
+
+impl PixelRays {
+    /// Rays for `frame`, or None when interior pixels do not apply: the
+    /// distant-observer mode, a displacement map (the silhouette is not the
+    /// sphere's), the camera inside the sphere, or a body too small.
+    pub fn new(frame: &Frame) -> Option<PixelRays> {
+        if frame.distant || frame.body.relief.height.is_some() {
+            return None;
+        }
+        let centre = -frame.camera_cam;
+        let radius = frame.radius;
+        let c = centre.length_squared() - radius * radius;
+        if !(c > 0.0) {
+            return None;
+        }
+        let cam = frame.camera;
+        let apparent = cam.fx.min(cam.fy) * (radius / c.sqrt());
+        if apparent < MIN_RADIUS_PX {
+            return None;
+        }
+        let [a0, a1, a2] = frame.axes_cam;
+        let cam_to_local = DMat3::from_cols(a0, a1, a2).transpose();
+        let [b0, b1, b2] = frame.axes_body;
+        let local_to_body = DMat3::from_cols(b0, b1, b2);
+        Some(PixelRays {
+            centre,
+            radius,
+            cam_to_body: local_to_body * cam_to_local,
+            cam_to_local,
+            fx: cam.fx,
+            fy: cam.fy,
+            cx: cam.cx,
+            cy: cam.cy,
+            sin_a: frame.lune.alpha.sin(),
+            cos_a: frame.lune.alpha.cos(),
+            camera_local: frame.lune.camera_local(),
+            radius_px: apparent,
+            convex: frame.lune.alpha <= std::f64::consts::FRAC_PI_2 && frame.occulter.is_none(),
+        })
+    }
+
+    /// Camera-frame ray (x, y, 1) through continuous pixel position (u, v)
+    /// and the distance factor t of its first hit (P = t·ray), if any.
+    #[inline]
+    fn hit(&self, u: f64, v: f64) -> Option<(DVec3, f64, DVec3)> {
+        let d = DVec3::new((u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0);
+        let a = d.length_squared();
+        let b = d.dot(self.centre);
+        if b <= 0.0 {
+            return None;
+        }
+        // Miss distance from the perpendicular component of the centre, not
+        // from b² − a(|C|² − R²), which cancels catastrophically at
+        // planetary distances.
+        let perp = self.centre - d * (b / a);
+        let disc = self.radius * self.radius - perp.length_squared();
+        if !(disc > 0.0) {
+            return None;
+        }
+        let back = (disc / a).sqrt();
+        let t = b / a - back;
+        let n_cam = (-perp - d * back) / self.radius;
+        Some((d, t, n_cam))
+    }
+
+    /// Whether the surface point seen through (u, v) is lit by the whole
+    /// solar disk (the lune's lit condition, and no occulter shadow).
+    #[inline]
+    fn corner_ok(&self, frame: &Frame, u: f64, v: f64) -> bool {
+        let Some((_, _, n_cam)) = self.hit(u, v) else {
+            return false;
+        };
+        let n_local = self.cam_to_local * n_cam;
+        n_local.x > frame.lune.k_sun
+            && (frame.occulter.is_none() || frame.sun_fraction(n_local * self.radius) >= 1.0)
+    }
+
+    /// Surface point and frames seen through continuous pixel position
+    /// (u, v).
+    #[inline]
+    fn surface(&self, u: f64, v: f64) -> Option<Surface> {
+        let (d, t, n_cam) = self.hit(u, v)?;
+        let p = d * t;
+        let d_n = d.dot(n_cam);
+        if !(d_n < 0.0) {
+            return None;
+        }
+        Some(Surface {
+            d,
+            t,
+            p,
+            n_cam,
+            n_local: self.cam_to_local * n_cam,
+            n_body: self.cam_to_body * n_cam,
+            d_n,
+        })
+    }
+
+    /// The map footprint of one pixel at `s`: the tangent vectors of the hit
+    /// per pixel step (unit sphere), dP/du = t (∂d/∂u − d (∂d/∂u·n)/(d·n)).
+    #[inline]
+    fn footprint(&self, map: &EquirectMap, s: &Surface) -> Footprint {
+        let du = DVec3::new(1.0 / self.fx, 0.0, 0.0);
+        let dv = DVec3::new(0.0, 1.0 / self.fy, 0.0);
+        let scale = s.t / self.radius;
+        let e_u = (du - s.d * (du.dot(s.n_cam) / s.d_n)) * scale;
+        let e_v = (dv - s.d * (dv.dot(s.n_cam) / s.d_n)) * scale;
+        Footprint::new(
+            map,
+            s.n_body,
+            self.cam_to_body * e_v,
+            self.cam_to_body * e_u,
+        )
+    }
+
+    /// ∫ f_r μ0 (AU/d_sun)² dΩ over the pixel at `s` for a given albedo, by
+    /// the product rule at its centre.
+    #[inline]
+    fn flux_at(&self, frame: &Frame, s: &Surface, albedo: f64) -> f64 {
+        let mu0_far = s.n_local.x;
+        let mu_far = s.n_local.x * self.cos_a + s.n_local.y * self.sin_a;
+        let integrand = frame.integrand(
+            s.n_local,
+            s.n_body,
+            albedo,
+            mu0_far,
+            mu_far,
+            self.cos_a,
+            self.camera_local,
+            frame.lune.camera_range,
+            frame.lune.sun_range,
+            self.radius,
+            &frame.body.reflectance,
+        );
+        // integrand · dS with dS = |P|² / μ · dΩ and dΩ = du dv / (fx fy |d|³).
+        let dist = s.p.length();
+        let mu = -s.p.dot(s.n_cam) / dist;
+        let d_len = s.d.length();
+        let omega = 1.0 / (self.fx * self.fy * d_len * d_len * d_len);
+        integrand * dist * dist / mu * omega
+    }
+
+    /// Collected flux of interior pixel (i, j) per unit solar irradiance at
+    /// 1 au, evaluated directly.
+    fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> f64 {
+        let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
+        let Some(s) = self.surface(u, v) else {
+            return 0.0;
+        };
+        let albedo = match &frame.body.albedo_map {
+            None => frame.albedo,
+            Some(map) => self.footprint(map, &s).mean(map, frame.texture_samples),
+        };
+        let mu = -s.p.dot(s.n_cam) / s.p.length();
+        // Distance to the limb [px] (sin e = 1 − d/R on the image).
+        let to_limb = self.radius_px * (1.0 - (1.0 - mu * mu).max(0.0).sqrt());
+        let midpoint = self.flux_at(frame, &s, albedo);
+        if to_limb >= MIDPOINT_MIN_PX {
+            return midpoint;
+        }
+        let gauss = |rule: &[(f64, f64)]| {
+            let mut sum = 0.0;
+            for &(du, wu) in rule {
+                for &(dv, wv) in rule {
+                    if let Some(g) = self.surface(u + du, v + dv) {
+                        sum += wu * wv * self.flux_at(frame, &g, albedo);
+                    }
+                }
+            }
+            sum
+        };
+        let two = gauss(&GAUSS2);
+        // The midpoint's error is ~20× the 2×2 rule's: where it exceeds
+        // GAUSS2_MAX_STEP, the 2×2 rule may exceed 1e-4.
+        if to_limb >= GAUSS2_MIN_PX && (two - midpoint).abs() <= GAUSS2_MAX_STEP * two.abs() {
+            two
+        } else {
+            gauss(&GAUSS4)
+        }
+    }
+}
+
+/// Gauss–Legendre offsets [px] from a pixel centre and weights (summing to
+/// 1) of 2 and 4 points.
+const GAUSS2: [(f64, f64); 2] = [
+    (-0.288_675_134_594_812_9, 0.5),
+    (0.288_675_134_594_812_9, 0.5),
+];
+const GAUSS4: [(f64, f64); 4] = [
+    (-0.430_568_155_797_026_3, 0.173_927_422_568_726_9),
+    (-0.169_990_521_792_428_1, 0.326_072_577_431_273_1),
+    (0.169_990_521_792_428_1, 0.326_072_577_431_273_1),
+    (0.430_568_155_797_026_3, 0.173_927_422_568_726_9),
+];
+
+/// A ray's first hit on the sphere, in the frames the integrand needs.
+struct Surface {
+    /// Ray (x, y, 1) in the camera frame.
+    d: DVec3,
+    /// P = t d.
+    t: f64,
+    p: DVec3,
+    n_cam: DVec3,
+    n_local: DVec3,
+    n_body: DVec3,
+    /// d · n (negative on the visible side).
+    d_n: f64,
+}
