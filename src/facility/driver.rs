@@ -127,9 +127,10 @@ impl ScreenModel {
             cam.band,
             1,
         );
-        // Build the albedo map's summed-area table now, not in frame 0.
+        // Build the albedo map's summed-area table and levels now, not in frame 0.
         if let Some(map) = &scene.body.albedo_map {
             map.box_average(0.0, 0.0, 1.0, 1.0);
+            map.sample_stretched(0.0, 0.0, 4.0);
         }
         let albedo = (!scene.body.reflectance.is_spectrally_flat())
             .then(|| scene.body.reflectance.albedo_at(bands[0].centroid));

@@ -677,7 +677,8 @@ impl Footprint {
 
     /// k×k samples over the footprint into `values` (k recorded in
     /// `k_out`); returns their mean. Samples smaller than a texel are
-    /// bilinear; larger ones average the texels of a box of their size.
+    /// bilinear; those stretched along longitude only read the map's
+    /// x-averaged levels; others average a box of their size.
     #[inline]
     pub(super) fn sample(
         &self,
@@ -707,6 +708,8 @@ impl Footprint {
                 let y = self.y + a1.1 * v + a2.1 * u;
                 let value = if sx <= 1.5 && sy <= 1.5 {
                     map.sample_texel(x, y)
+                } else if sy <= 1.5 {
+                    map.sample_stretched(x, y, sx)
                 } else {
                     let (la, lo) = map.lat_lon_of(x, y);
                     map.box_average(

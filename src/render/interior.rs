@@ -9,11 +9,12 @@
 //! near the limb, the terminator or a shadow edge stay with the lune's caps
 //! and their exact polygon gridding ([`super::caps`]).
 //!
-//! Toward the limb μ ∝ √(distance), which the midpoint rule follows only to
-//! about 1/(96 d²) at d pixels from the limb, worse where μ0 is small too:
-//! pixels closer than [`MIDPOINT_MIN_PX`] take 2×2 Gauss points, and 4×4
-//! where the 2×2 rule moved far from the midpoint or within
-//! [`GAUSS2_MIN_PX`] of the limb.
+//! Toward the limb μ ∝ √(distance), and so is μ0 where the Sun is behind
+//! the camera: the midpoint rule's relative error there is about
+//! 1/(24 μ³ μ0 R²) (R the apparent radius in pixels). Where that exceeds
+//! [`MIDPOINT_TOLERANCE`] a pixel takes 2×2 Gauss points, and 4×4 where the
+//! 2×2 rule moved far from the midpoint or within [`GAUSS2_MIN_PX`] of the
+//! limb.
 //!
 //! The classification is conservative: a pixel is interior only if every
 //! corner of its 3×3 neighbourhood hits the sphere lit and unshadowed, so a
@@ -27,8 +28,8 @@ use crate::scene::EquirectMap;
 
 /// Smallest apparent radius [px] at which interior pixels are worth it.
 pub const MIN_RADIUS_PX: f64 = 12.0;
-/// Distance from the limb [px] from which one point per pixel suffices.
-pub const MIDPOINT_MIN_PX: f64 = 7.0;
+/// Estimated relative error up to which one point per pixel is kept.
+pub const MIDPOINT_TOLERANCE: f64 = 1e-4;
 /// Distance from the limb [px] from which 2×2 Gauss points may suffice.
 pub const GAUSS2_MIN_PX: f64 = 1.2;
 /// Largest relative change from the midpoint to the 2×2 rule for which the
@@ -337,7 +338,9 @@ impl PixelRays {
         // Distance to the limb [px] (sin e = 1 − d/R on the image).
         let to_limb = self.radius_px * (1.0 - (1.0 - mu * mu).max(0.0).sqrt());
         let midpoint = self.flux_at(frame, &s, albedo);
-        if to_limb >= MIDPOINT_MIN_PX {
+        let mu0 = s.n_local.x.max(1e-6);
+        let r2 = self.radius_px * self.radius_px;
+        if 24.0 * mu * mu * mu * mu0 * r2 * MIDPOINT_TOLERANCE >= 1.0 {
             return midpoint;
         }
         let gauss = |rule: &[(f64, f64)]| {
