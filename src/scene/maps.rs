@@ -214,7 +214,7 @@ impl EquirectMap {
             let h = self.height;
             let mut levels = vec![self.data.clone()];
             let mut w = self.width;
-            while w % 2 == 0 && w >= 8 {
+            while w.is_multiple_of(2) && w >= 8 {
                 let prev = levels.last().expect("level 0");
                 let half = w / 2;
                 let mut next = vec![0.0f32; half * h];
