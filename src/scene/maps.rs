@@ -466,6 +466,29 @@ mod tests {
     }
 
     #[test]
+    fn stretched_samples_average_along_longitude() {
+        // Columns alternating 0/1: any footprint ≥ 4 texels wide sees the
+        // mean ½; a 1-texel one still sees the bilinear value.
+        let w = 64;
+        let data: Vec<f32> = (0..w * 8).map(|k| (k % 2) as f32).collect();
+        let m = EquirectMap::new(w, 8, data);
+        for x in [3.0, 10.25, 40.5, 63.7] {
+            for width in [4.0, 9.0, 30.0] {
+                let v = m.sample_stretched(x, 3.5, width);
+                assert!((v - 0.5).abs() < 1e-6, "x {x} width {width}: {v}");
+            }
+        }
+        assert!((m.sample_stretched(10.0, 3.0, 1.0) - m.sample_texel(10.0, 3.0)).abs() < 1e-12);
+        // A linear ramp in x (away from the wrap) is reproduced at any width.
+        let ramp: Vec<f32> = (0..w * 8).map(|k| (k % w) as f32).collect();
+        let m = EquirectMap::new(w, 8, ramp);
+        for width in [2.0, 5.0, 12.0] {
+            let v = m.sample_stretched(31.5, 2.0, width);
+            assert!((v - 31.5).abs() < 1e-4, "width {width}: {v}");
+        }
+    }
+
+    #[test]
     fn sampling_wraps_across_the_date_line() {
         let m = map(8, 4, |_, lon| lon.cos());
         let a = m.sample(0.0, PI - 1e-9);
