@@ -288,16 +288,27 @@ pub struct TimingConfig {
     /// A state older than this is not rendered again, s.
     #[serde(default = "default_state_timeout")]
     pub state_timeout: f64,
+    /// Start each frame as late as its recent render, conversion and
+    /// present times allow before its slot (late latching), so the state
+    /// shown is as fresh as possible; false: start as soon as a buffer is
+    /// free.
+    #[serde(default = "default_late_latch")]
+    pub late_latch: bool,
 }
 
 fn default_state_timeout() -> f64 {
     0.5
 }
 
+fn default_late_latch() -> bool {
+    true
+}
+
 impl Default for TimingConfig {
     fn default() -> Self {
         TimingConfig {
             state_timeout: default_state_timeout(),
+            late_latch: default_late_latch(),
         }
     }
 }

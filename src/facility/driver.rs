@@ -10,6 +10,12 @@
 //! acknowledgement if asked, and writes the log record. Two frame buffers
 //! circulate between them, so frame k+1 is rendered while frame k is on
 //! screen, and nothing is allocated per frame.
+//!
+//! Late latching: the render thread does not take a state as soon as a
+//! buffer is free, which would make every frame a slot old when shown. It
+//! waits until the next slot minus its budget, the largest render,
+//! conversion and present time of the last [`BUDGET_WINDOW`] frames plus a
+//! margin, then takes the newest state.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -97,6 +103,56 @@ pub fn screen_pinhole(config: &FacilityConfig) -> Pinhole {
         fy: f,
         cx: w as f64 / 2.0 + config.alignment.offset_px[0],
         cy: h as f64 / 2.0 + config.alignment.offset_px[1],
+    }
+}
+
+/// Frames over which the late-latching budget is taken.
+pub const BUDGET_WINDOW: usize = 60;
+/// Safety margin added to the late-latching budget.
+const BUDGET_MARGIN: Duration = Duration::from_millis(2);
+
+/// Shared by the two threads for late latching: the next slot and the
+/// recent present times.
+struct Pacer {
+    base: Instant,
+    /// Next slot, ns after `base` (0: unknown).
+    next_slot_ns: std::sync::atomic::AtomicU64,
+    /// Largest present duration seen recently, ns.
+    present_ns: std::sync::atomic::AtomicU64,
+}
+
+impl Pacer {
+    fn next_slot(&self) -> Option<Instant> {
+        match self.next_slot_ns.load(Ordering::Acquire) {
+            0 => None,
+            ns => Some(self.base + Duration::from_nanos(ns)),
+        }
+    }
+
+    fn set_next_slot(&self, at: Instant) {
+        let ns = at.saturating_duration_since(self.base).as_nanos().max(1) as u64;
+        self.next_slot_ns.store(ns, Ordering::Release);
+    }
+}
+
+/// Recent per-frame work times of the render thread.
+struct Budget {
+    recent: std::collections::VecDeque<Duration>,
+}
+
+impl Budget {
+    fn record(&mut self, d: Duration) {
+        if self.recent.len() == BUDGET_WINDOW {
+            self.recent.pop_front();
+        }
+        self.recent.push_back(d);
+    }
+
+    /// Time to reserve before a slot: the slowest recent frame, the
+    /// slowest recent present, and the margin.
+    fn reserve(&self, present: Duration) -> Option<Duration> {
+        let work = self.recent.iter().max()?;
+        Some(*work + present + BUDGET_MARGIN)
     }
 }
 
@@ -194,8 +250,14 @@ fn render_loop(
     free: Receiver<Vec<u32>>,
     ready: SyncSender<Job>,
     dropped: Arc<std::sync::atomic::AtomicU64>,
+    pacer: Option<Arc<Pacer>>,
+    period: Duration,
 ) -> Result<()> {
     let black = converter.black_pixel();
+    let mut budget = Budget {
+        recent: std::collections::VecDeque::with_capacity(BUDGET_WINDOW),
+    };
+    let mut last_target: Option<Instant> = None;
     let mut last: Option<(TrajectoryState, Instant)> = None;
     // ROI last drawn into each buffer, by buffer address.
     let mut drawn: Vec<(usize, Option<Roi>)> = Vec::new();
@@ -206,6 +268,27 @@ fn render_loop(
             break;
         }
         let Ok(mut buffer) = free.recv() else { break };
+        if let Some(p) = &pacer {
+            let present = Duration::from_nanos(p.present_ns.load(Ordering::Relaxed));
+            // The slot this frame will be shown in: the one after the
+            // previous frame's, which may not have been presented yet.
+            let target = match (p.next_slot(), last_target) {
+                (Some(next), Some(last)) => Some(next.max(last + period)),
+                (next, _) => next,
+            };
+            last_target = target;
+            if let (Some(slot), Some(reserve)) = (target, budget.reserve(present)) {
+                if let Some(start) = slot.checked_sub(reserve) {
+                    while !stop.load(Ordering::Relaxed) {
+                        let now = Instant::now();
+                        if now >= start {
+                            break;
+                        }
+                        std::thread::sleep((start - now).min(Duration::from_millis(50)));
+                    }
+                }
+            }
+        }
         let render_start = Instant::now();
         let (state, received) = match &mut source {
             Source::Replay { states, next } => {
@@ -274,6 +357,7 @@ fn render_loop(
         }
         frame_id.encode(&mut buffer, frame)?;
         let convert_end = Instant::now();
+        budget.record(convert_end - render_start);
         let job = Job {
             buffer,
             frame,
@@ -390,6 +474,14 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     let render_stop = stop.clone();
     let render_dropped = dropped.clone();
     let rotation = config.alignment.rotation;
+    let pacer = config.timing.late_latch.then(|| {
+        Arc::new(Pacer {
+            base: run_start,
+            next_slot_ns: 0.into(),
+            present_ns: 0.into(),
+        })
+    });
+    let render_pacer = pacer.clone();
     let worker = std::thread::Builder::new()
         .name("optistim-render".into())
         .spawn(move || {
@@ -406,6 +498,8 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
                 free_rx,
                 ready_tx,
                 render_dropped,
+                render_pacer,
+                period,
             )
         })
         .map_err(|e| Error::Other(format!("cannot start the render thread: {e}")))?;
@@ -434,6 +528,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
             std::thread::sleep(slot - now);
         }
         let deadline = slot + period;
+        let present_start = Instant::now();
         let presented = match display.present(&job.buffer) {
             Ok(t) => t,
             Err(e) => {
@@ -491,7 +586,21 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
             result = Err(e);
             break;
         }
-        schedule = Some(slot.max(now) + period);
+        let next = slot.max(now) + period;
+        schedule = Some(next);
+        if let Some(p) = &pacer {
+            // Decay the recorded present time slowly, so one slow present
+            // keeps the budget up for a while but not forever.
+            let took = presented
+                .saturating_duration_since(present_start)
+                .as_nanos() as u64;
+            let old = p.present_ns.load(Ordering::Relaxed);
+            p.present_ns.store(
+                took.max(old - old / BUDGET_WINDOW as u64),
+                Ordering::Relaxed,
+            );
+            p.set_next_slot(next);
+        }
         // The render thread may already have finished (frame limit, end of
         // the trajectory) with its last frame still queued in `ready_rx`:
         // keep presenting until that channel is drained and disconnected.
