@@ -21,3 +21,4 @@ rm -f out/bench/frames_$screen.jsonl
   --summary out/bench/summary_$screen.json 2> out/bench/time_$screen.txt
 grep -E "Maximum resident|Elapsed" out/bench/time_$screen.txt
 cat out/bench/summary_$screen.json
+python3 tools/frame_log_stats.py out/bench/frames_$screen.jsonl
