@@ -31,7 +31,8 @@
 //! where one step is ~15 % of the radiance, is far more than 0.2 %. So by
 //! default (`block = 8`) the screen is cut into 8×8 tiles aligned to the
 //! screen grid; in each tile (∩ ROI) the pixels between two levels are ranked
-//! by `p − threshold` and exactly the `n` best-ranked are raised to `k+1`,
+//! by `p − threshold` (descending; equal values by position in the tile, row
+//! first, then column) and exactly the `n` best-ranked are raised to `k+1`,
 //! `n` chosen so the tile's emitted radiance is closest to its target
 //! (error ≤ ½ of the largest step in the tile, i.e. ≤ 1/128 of a step per
 //! pixel). Where `p` is uniform this selects the same pixels as the ordered
@@ -648,10 +649,11 @@ impl PixelCtx<'_> {
 
 /// Raises the `n` candidates with the largest `p − threshold` to `k + 1`,
 /// with `n` chosen so that the tile's emitted radiance is closest to its
-/// target: |error| ≤ half the largest step in the tile.
+/// target: |error| ≤ half the largest step in the tile. Equal keys rank by
+/// position (row, then column), so the result does not depend on the sort.
 fn exact_tile(ctx: &PixelCtx<'_>, band: &mut [u32], w: usize, cands: &mut [Candidate]) {
     let excess: f64 = cands.iter().map(|c| c.p * c.step).sum();
-    cands.sort_unstable_by(|a, b| b.key.total_cmp(&a.key));
+    cands.sort_unstable_by(|a, b| b.key.total_cmp(&a.key).then((a.r, a.x).cmp(&(b.r, b.x))));
     let mut cum = 0.0;
     let mut n = cands.len();
     for (i, c) in cands.iter().enumerate() {
