@@ -905,4 +905,294 @@ mod tests {
         assert_eq!(ones(&f1), 19 * 4);
         assert_eq!(ones(&f2), 19 * 4);
     }
+
+    /// The conversion as the module docs state it, one pixel at a time and
+    /// one full sort per tile (by key descending, then row, then column).
+    /// Writes `roi` into `frame` and returns the statistics.
+    #[allow(clippy::too_many_arguments)]
+    fn reference_convert(
+        lut: &DisplayLut,
+        flat: Option<&FlatField>,
+        matrix: &ThresholdMatrix,
+        s: &ConvertSettings,
+        offset: (usize, usize),
+        width: usize,
+        target: &[f32],
+        roi: Roi,
+        frame: &mut [u32],
+    ) -> ConvertStats {
+        struct Cand {
+            x: usize,
+            y: usize,
+            k: u32,
+            p: f64,
+            step: f64,
+            key: f64,
+        }
+        let lr = lut.level_radiances();
+        let top = lut.levels() - 1;
+        let factor = s.scale_k / s.transmission;
+        let tile = s.block.max(1);
+        let mut st = ConvertStats::default();
+        let mut cands: Vec<Cand> = Vec::new();
+        for y in roi.y..roi.y + roi.height {
+            for x in roi.x..roi.x + roi.width {
+                st.pixels += 1;
+                let t = target[(y - roi.y) * roi.width + x - roi.x] as f64;
+                let mut level = 0;
+                if !t.is_finite() {
+                    st.non_finite += 1;
+                } else {
+                    let gain = flat.map_or(1.0, |f| f.gain(x, y) as f64);
+                    let l = t * factor / gain;
+                    st.peak_target = st.peak_target.max(t);
+                    st.peak_screen = st.peak_screen.max(l);
+                    if l == 0.0 {
+                    } else if l < lut.black() {
+                        st.clipped_low += 1;
+                    } else if l >= lut.max_radiance() {
+                        st.clipped_high += u64::from(l > lut.max_radiance());
+                        level = top;
+                    } else {
+                        let (k, p) = lut.bracket(l).unwrap();
+                        let th = matrix.get(x + offset.0, y + offset.1) as f64;
+                        level = k;
+                        if tile == 1 {
+                            level += u32::from(p > th);
+                        } else {
+                            let step = lr[k as usize + 1] - lr[k as usize];
+                            let key = p - th;
+                            cands.push(Cand {
+                                x,
+                                y,
+                                k,
+                                p,
+                                step,
+                                key,
+                            });
+                        }
+                    }
+                }
+                frame[y * width + x] = lut.encode_pixel(level);
+            }
+        }
+        // Tiles of the screen grid, candidates in row-major order.
+        let mut tiles: std::collections::BTreeMap<(usize, usize), Vec<Cand>> = Default::default();
+        for c in cands {
+            tiles.entry((c.y / tile, c.x / tile)).or_default().push(c);
+        }
+        for (_, mut cs) in tiles {
+            let excess: f64 = cs.iter().map(|c| c.p * c.step).sum();
+            cs.sort_by(|a, b| b.key.total_cmp(&a.key).then((a.y, a.x).cmp(&(b.y, b.x))));
+            let mut cum = 0.0;
+            let mut n = cs.len();
+            for (i, c) in cs.iter().enumerate() {
+                if cum + c.step > excess {
+                    n = if cum + c.step - excess < excess - cum {
+                        i + 1
+                    } else {
+                        i
+                    };
+                    break;
+                }
+                cum += c.step;
+            }
+            for c in &cs[..n] {
+                frame[c.y * width + c.x] = lut.encode_pixel(c.k + 1);
+            }
+        }
+        st
+    }
+
+    /// A node at every level with dyadic radiances `1 + k + k²/256`: the
+    /// LUT holds them exactly, and steps differ from level to level.
+    fn dyadic_lut() -> DisplayLut {
+        let levels: Vec<f64> = (0..256).map(f64::from).collect();
+        let rad: Vec<f64> = levels.iter().map(|k| 1.0 + k + k * k / 256.0).collect();
+        DisplayLut::from_points(&levels, &rad, 8).unwrap()
+    }
+
+    /// Display LUTs with different shapes: measured-like, gamma with black
+    /// 0, linear (equal steps, exact ties), dyadic, flat stretches, 10 bit.
+    fn test_luts() -> Vec<DisplayLut> {
+        let example = concat!(env!("CARGO_MANIFEST_DIR"), "/calib/example_lut.csv");
+        let gamma = |bits: u32, black: f64, n: usize| {
+            let top = ((1u32 << bits) - 1) as f64;
+            let levels: Vec<f64> = (0..n).map(|i| top * i as f64 / (n - 1) as f64).collect();
+            let rad: Vec<f64> = levels
+                .iter()
+                .map(|l| black + 90.0 * (l / top).powf(2.2))
+                .collect();
+            DisplayLut::from_points(&levels, &rad, bits).unwrap()
+        };
+        vec![
+            DisplayLut::load(example, 8).unwrap(),
+            gamma(8, 0.0, 18),
+            gamma(10, 0.05, 33),
+            linear_lut(),
+            dyadic_lut(),
+            DisplayLut::from_points(&[0.0, 1023.0], &[0.5, 1024.5], 10).unwrap(),
+            DisplayLut::from_points(
+                &[0.0, 40.0, 100.0, 200.0, 255.0],
+                &[0.2, 0.2, 3.0, 3.0, 9.0],
+                8,
+            )
+            .unwrap(),
+        ]
+    }
+
+    /// A random target for `roi` at screen radiances spanning `lut`, as a
+    /// mix of patterns (all with exact zeros and, sometimes, NaN/inf).
+    fn random_target(rng: &mut Rng, lut: &DisplayLut, factor: f64, roi: Roi) -> Vec<f32> {
+        let mut unit = || rng.unit();
+        let (black, max) = (lut.black(), lut.max_radiance());
+        let lr = lut.level_radiances();
+        let top = (lut.levels() - 1) as f64;
+        let pattern = (unit() * 7.0) as u32;
+        let (lvl0, slope_x, slope_y) = (unit() * top, (unit() - 0.5) * 4.0, (unit() - 0.5) * 0.5);
+        let zeros = unit() * 0.4;
+        let weird = unit() < 0.3;
+        let quarter = unit() * 4.0;
+        (0..roi.area())
+            .map(|i| {
+                let (u, v) = ((i % roi.width) as f64, (i / roi.width) as f64);
+                let r = unit();
+                if r < zeros {
+                    return 0.0;
+                }
+                if weird && r > 0.97 {
+                    return [f32::NAN, f32::INFINITY, -1.0, f32::NEG_INFINITY]
+                        [(r * 1e4) as usize % 4];
+                }
+                let level = match pattern {
+                    // Gradient in level space.
+                    0 => lvl0 + slope_x * u + slope_y * v,
+                    // Noise.
+                    1 => unit() * top,
+                    // Exact level radiances and quarters between them.
+                    2 => (lvl0 + u * 0.25).floor() + (quarter.floor() * 0.25),
+                    // Straddling black and the maximum.
+                    3 => {
+                        if unit() < 0.5 {
+                            -0.5 + unit() * 2.0
+                        } else {
+                            top - 1.5 + unit() * 2.5
+                        }
+                    }
+                    // Constant.
+                    4 => lvl0,
+                    // Two levels in alternate columns, halfway: with Bayer
+                    // thresholds the walk lands exactly on a tie.
+                    5 => lvl0.floor() + (u % 2.0) + 0.5,
+                    // Slow gradient.
+                    _ => lvl0 + 0.03 * u + 0.02 * v,
+                };
+                let l = if level <= 0.0 {
+                    black * (1.0 + level) // below black or at it
+                } else if level >= top {
+                    max * (1.0 + 0.01 * (level - top))
+                } else {
+                    let k = level.floor() as usize;
+                    lr[k] + (level - k as f64) * (lr[k + 1] - lr[k])
+                };
+                (l / factor) as f32
+            })
+            .collect()
+    }
+
+    /// Deterministic test randomness.
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            splitmix64(&mut self.0)
+        }
+
+        /// Uniform in [0, 1).
+        fn unit(&mut self) -> f64 {
+            (self.next() >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    #[test]
+    fn convert_matches_the_reference_on_random_inputs() {
+        let luts = test_luts();
+        let matrices = [
+            ThresholdMatrix::bayer(4).unwrap(),
+            ThresholdMatrix::bayer(16).unwrap(),
+            ThresholdMatrix::blue_noise(16, 3).unwrap(),
+        ];
+        let (w, h) = (70, 45);
+        let mut rng = Rng(0x5EED);
+        for case in 0..400 {
+            let lut = luts[case % luts.len()].clone();
+            let matrix = matrices[(rng.unit() * 3.0) as usize].clone();
+            let transmission = 0.5 + 0.5 * rng.unit();
+            let settings = ConvertSettings {
+                transmission,
+                // Sometimes exactly 1 ÷ τ·k = 1, so exact radiances survive.
+                scale_k: if rng.unit() < 0.3 {
+                    transmission
+                } else {
+                    0.1 + 2.0 * rng.unit()
+                },
+                temporal: rng.unit() < 0.5,
+                seed: rng.next(),
+                block: [0, 1, 2, 3, 8, 8, 8, 16][(rng.unit() * 8.0) as usize],
+            };
+            let flat = (rng.unit() < 0.4).then(|| {
+                let gains = (0..w * h)
+                    .map(|_| (0.6 + 0.8 * rng.unit()) as f32)
+                    .collect();
+                FlatField::from_gains(w, h, gains).unwrap()
+            });
+            let mut conv =
+                Converter::new(lut.clone(), flat.clone(), matrix.clone(), settings, (w, h))
+                    .unwrap();
+            let factor = settings.scale_k / settings.transmission;
+            let mut frame = vec![0x0012_3456; w * h];
+            let mut want = frame.clone();
+            // Two conversions into the same frame: the second clears the first.
+            let mut prev: Option<Roi> = None;
+            for frame_id in [7u64, 8] {
+                let rw = 1 + (rng.unit() * 60.0) as usize;
+                let rh = 1 + (rng.unit() * 40.0) as usize;
+                let roi = Roi::new(
+                    (rng.unit() * (w - rw) as f64) as usize,
+                    (rng.unit() * (h - rh) as f64) as usize,
+                    rw,
+                    rh,
+                );
+                let target = random_target(&mut rng, &lut, factor, roi);
+                let got = conv.convert(&target, roi, frame_id, &mut frame).unwrap();
+                if let Some(p) = prev {
+                    for y in p.y..p.y + p.height {
+                        want[y * w + p.x..y * w + p.x + p.width].fill(lut.encode_pixel(0));
+                    }
+                }
+                let expect = reference_convert(
+                    &lut,
+                    flat.as_ref(),
+                    &matrix,
+                    &settings,
+                    conv.dither_offset(frame_id),
+                    w,
+                    &target,
+                    roi,
+                    &mut want,
+                );
+                assert_eq!(got, expect, "case {case}, frame {frame_id}: stats");
+                if let Some(i) = (0..w * h).find(|&i| frame[i] != want[i]) {
+                    panic!(
+                        "case {case}, frame {frame_id}, {roi:?}, {settings:?}: pixel ({}, {}) is {:#x}, want {:#x}",
+                        i % w,
+                        i / w,
+                        frame[i],
+                        want[i]
+                    );
+                }
+                prev = Some(roi);
+            }
+        }
+    }
 }
