@@ -504,9 +504,7 @@ impl Converter {
         }
         let black_pixel = self.lut.encode_pixel(0);
         if let Some(prev) = self.prev_roi.take() {
-            for y in prev.y..prev.y + prev.height {
-                frame[y * w + prev.x..y * w + prev.x + prev.width].fill(black_pixel);
-            }
+            clear_outside(frame, w, prev, roi, black_pixel);
         }
         self.prev_roi = Some(roi);
         if roi.is_empty() {
@@ -560,6 +558,25 @@ impl Converter {
             })
             .reduce(ConvertStats::default, ConvertStats::merge);
         Ok(stats)
+    }
+}
+
+/// Blackens the pixels of `prev` that are outside `roi` (every pixel of
+/// `roi` is written by the conversion anyway).
+fn clear_outside(frame: &mut [u32], w: usize, prev: Roi, roi: Roi, black: u32) {
+    let (prev_end, roi_end) = (prev.x + prev.width, roi.x + roi.width);
+    for y in prev.y..prev.y + prev.height {
+        let row = &mut frame[y * w..(y + 1) * w];
+        if roi.width > 0 && y >= roi.y && y < roi.y + roi.height {
+            if prev.x < roi.x {
+                row[prev.x..prev_end.min(roi.x)].fill(black);
+            }
+            if prev_end > roi_end {
+                row[prev.x.max(roi_end)..prev_end].fill(black);
+            }
+        } else {
+            row[prev.x..prev_end].fill(black);
+        }
     }
 }
 
