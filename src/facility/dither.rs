@@ -606,6 +606,9 @@ struct LevelIndex {
     /// first bucket, which also takes everything below it). Fixed sizes
     /// here and in `pairs` spare the lookups their bounds checks.
     start: Box<[u16; BUCKETS]>,
+    /// Per bucket, `L_{k+1}` of its `start` level `k`: looked up with it,
+    /// not after it.
+    bound: Box<[f64; BUCKETS]>,
     /// `[L_k, L_{k+1}]` per level `k`, +inf past the top.
     pairs: Box<[[f64; 2]; 1024]>,
     /// No bucket spans more than one level boundary.
@@ -613,7 +616,7 @@ struct LevelIndex {
 }
 
 /// Capacity of [`LevelIndex::start`].
-const BUCKETS: usize = 1 << 15;
+const BUCKETS: usize = 1 << 14;
 
 impl std::fmt::Debug for LevelIndex {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -636,6 +639,7 @@ impl LevelIndex {
             base: 0,
             len: 0,
             start: vec![0; BUCKETS].try_into().expect("BUCKETS entries"),
+            bound: vec![0.0; BUCKETS].try_into().expect("BUCKETS entries"),
             pairs: (0..1024)
                 .map(|k| [at(k), at(k + 1)])
                 .collect::<Vec<_>>()
@@ -677,6 +681,7 @@ impl LevelIndex {
             let upper = if b + 1 < len { lower(b + 1) } else { max };
             walk = walk.max(k_lt(upper).saturating_sub(k0));
             self.start[b] = k0 as u16;
+            self.bound[b] = lr[k0 + 1];
         }
         self.shift = shift;
         self.base = base;
@@ -691,6 +696,7 @@ struct Bracketer<'a> {
     lut: &'a DisplayLut,
     index: &'a LevelIndex,
     start: &'a [u16; BUCKETS],
+    bound: &'a [f64; BUCKETS],
     pairs: &'a [[f64; 2]; 1024],
     shift: u32,
     base: u64,
@@ -711,11 +717,10 @@ impl Bracketer<'_> {
         }
         // l < max keeps the bucket in the table; the mask only tells the
         // compiler so.
-        let b = ((l.to_bits() >> self.shift).saturating_sub(self.base)) as usize;
-        let k = self.start[b & (BUCKETS - 1)] as usize;
+        let b = ((l.to_bits() >> self.shift).saturating_sub(self.base)) as usize & (BUCKETS - 1);
         // Branch-free (the data decide, not the predictor): one step up if
         // L_{k+1} ≤ l.
-        let k = k + usize::from(self.pairs[k & 1023][1] <= l);
+        let k = self.start[b] as usize + usize::from(self.bound[b] <= l);
         let [lo, hi] = self.pairs[k & 1023];
         (k, l - lo, hi - lo)
     }
@@ -988,6 +993,7 @@ impl PixelCtx<'_> {
             lut: self.lut,
             index,
             start: &index.start,
+            bound: &index.bound,
             pairs: &index.pairs,
             shift: index.shift,
             base: index.base,
