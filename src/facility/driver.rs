@@ -521,7 +521,11 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         if !display.is_open() {
             break;
         }
-        // Frame slots: the first frame sets the clock.
+        // Slots form a fixed grid of refresh periods from the first frame.
+        // A frame must be presented before the end of its slot; one that
+        // is not has left the previous frame on screen for an extra
+        // refresh (a missed deadline), and the next frame takes the first
+        // slot that has not yet ended.
         let slot = *schedule.get_or_insert_with(Instant::now);
         let now = Instant::now();
         if slot > now {
@@ -586,7 +590,9 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
             result = Err(e);
             break;
         }
-        let next = slot.max(now) + period;
+        let periods =
+            presented.saturating_duration_since(slot).as_nanos() / period.as_nanos().max(1);
+        let next = slot + period * (periods.min(1 << 20) as u32 + 1);
         schedule = Some(next);
         if let Some(p) = &pacer {
             // Decay the recorded present time slowly, so one slow present
