@@ -2,8 +2,10 @@
 //! of the facility screen seen through the collimator) and, for each state,
 //! turns the body into a point cloud of surface caps with power coefficients
 //! PF_i ([`caps`]), integrates each cap ([`closed_form`]), and grids it onto
-//! the pixels its footprint covers. [`detector`] then applies the paper's
-//! Eq. 2, and [`output`] writes the files of `optistim render`.
+//! the pixels its footprint covers. Pixels whose whole preimage is lit and
+//! visible take that preimage as their one cap ([`interior`]), so only the
+//! edges need the lune's caps. [`detector`] then applies the paper's Eq. 2,
+//! and [`output`] writes the files of `optistim render`.
 //!
 //! The renderer's primary product is the *collected flux* image: for each
 //! pixel, Σ_i ∫_cap f_r μ0 (AU/d_sun)² μ / d² dS, the irradiance the pixel's
