@@ -589,18 +589,13 @@ impl Texture {
     fn sample(&mut self, map: &EquirectMap, n: DVec3, e1: DVec3, e2: DVec3, k: usize) -> f64 {
         Footprint::new(map, n, e1, e2).sample(map, k, &mut self.values, &mut self.k)
     }
+
     /// Grid `pf` over the k×k sub-quadrilaterals of `quad` (corners at
     /// (t0,s0), (t0,s1), (t1,s1), (t1,s0)) in proportion to the samples.
     #[inline]
     fn grid(&self, sink: &mut Sink, quad: &[(f64, f64); 4], pf: f64) {
         // A cap inside one pixel needs no split.
-        let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
-        for p in &quad[1..] {
-            x0 = x0.min(p.0);
-            x1 = x1.max(p.0);
-            y0 = y0.min(p.1);
-            y1 = y1.max(p.1);
-        }
+        let (x0, y0, x1, y1) = bounds(quad);
         if x0.floor() == x1.floor() && y0.floor() == y1.floor() {
             sink.add(x0.floor() as i64, y0.floor() as i64, pf);
             return;
@@ -865,18 +860,25 @@ impl Sink<'_> {
         if !quad.iter().all(|p| p.0.is_finite() && p.1.is_finite()) {
             return false;
         }
-        let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
-        for p in &quad[1..] {
-            x0 = x0.min(p.0);
-            x1 = x1.max(p.0);
-            y0 = y0.min(p.1);
-            y1 = y1.max(p.1);
-        }
+        let (x0, y0, x1, y1) = bounds(quad);
         if !(x0 >= 0.0 && y0 >= 0.0) {
             return false;
         }
         mask.covers(x0 as usize, y0 as usize, x1 as usize + 1, y1 as usize + 1)
     }
+}
+
+/// Bounding box (x0, y0, x1, y1) of a projected footprint.
+#[inline]
+fn bounds(quad: &[(f64, f64); 4]) -> (f64, f64, f64, f64) {
+    let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
+    for p in &quad[1..] {
+        x0 = x0.min(p.0);
+        x1 = x1.max(p.0);
+        y0 = y0.min(p.1);
+        y1 = y1.max(p.1);
+    }
+    (x0, y0, x1, y1)
 }
 
 /// Area-weighted gridding of one cap (the paper's countermeasure against
@@ -886,13 +888,7 @@ impl Sink<'_> {
 /// footprints tile the image without gaps or overlaps.
 #[inline]
 fn grid_quad(sink: &mut Sink, quad: &[(f64, f64); 4], value: f64) {
-    let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
-    for p in &quad[1..] {
-        x0 = x0.min(p.0);
-        x1 = x1.max(p.0);
-        y0 = y0.min(p.1);
-        y1 = y1.max(p.1);
-    }
+    let (x0, y0, x1, y1) = bounds(quad);
     let (i0, i1) = (x0.floor() as i64, x1.floor() as i64);
     let (j0, j1) = (y0.floor() as i64, y1.floor() as i64);
     if i0 == i1 && j0 == j1 {
