@@ -98,33 +98,50 @@ impl InteriorMask {
         let ok = &self.corner_ok;
         self.eroded_rows.clear();
         self.eroded_rows.resize(w * (h + 1), false);
-        for jj in 0..=h {
-            let row = &ok[jj * cw..(jj + 1) * cw];
-            let out = &mut self.eroded_rows[jj * w..(jj + 1) * w];
-            for (i, o) in out.iter_mut().enumerate() {
-                *o = i >= reach
-                    && i + 1 + reach < cw
-                    && row[i - reach..=i + 1 + reach].iter().all(|&c| c);
-            }
-        }
+        self.eroded_rows
+            .par_chunks_mut(w)
+            .zip(ok.par_chunks(cw))
+            .for_each(|(out, row)| {
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = i >= reach
+                        && i + 1 + reach < cw
+                        && row[i - reach..=i + 1 + reach].iter().all(|&c| c);
+                }
+            });
         self.interior.clear();
         self.interior.resize(w * h, false);
         let e = &self.eroded_rows;
-        for j in reach..h.saturating_sub(reach) {
-            for i in 0..w {
-                self.interior[j * w + i] = (j - reach..=j + 1 + reach).all(|r| e[r * w + i]);
-            }
-        }
+        self.interior
+            .par_chunks_mut(w)
+            .enumerate()
+            .filter(|(j, _)| *j >= reach && *j + reach < h)
+            .for_each(|(j, out)| {
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = (j - reach..=j + 1 + reach).all(|r| e[r * w + i]);
+                }
+            });
+        // Summed-area table: row prefix counts in parallel, then the
+        // running sum down the columns.
         self.boundary_sat.clear();
         self.boundary_sat.resize(cw * (h + 1), 0);
-        let mut count = 0;
-        for j in 0..h {
-            let mut run = 0u32;
-            for i in 0..w {
-                let inside = self.interior[j * w + i];
-                count += usize::from(inside);
-                run += u32::from(!inside);
-                self.boundary_sat[(j + 1) * cw + i + 1] = self.boundary_sat[j * cw + i + 1] + run;
+        let interior = &self.interior;
+        let count: usize = self.boundary_sat[cw..]
+            .par_chunks_mut(cw)
+            .zip(interior.par_chunks(w))
+            .map(|(out, row)| {
+                let mut run = 0u32;
+                for (o, &inside) in out[1..].iter_mut().zip(row) {
+                    run += u32::from(!inside);
+                    *o = run;
+                }
+                row.iter().filter(|&&m| m).count()
+            })
+            .sum();
+        for j in 1..=h {
+            let (above, rest) = self.boundary_sat.split_at_mut(j * cw);
+            let above = &above[(j - 1) * cw..];
+            for (o, a) in rest[..cw].iter_mut().zip(above) {
+                *o += a;
             }
         }
         self.count = count;
