@@ -332,6 +332,24 @@ fn spawn_run(plan: RunPlan, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Ru
     })
 }
 
+/// Runs the driver in closed loop on a free loopback port, accepting
+/// `client` as the only sender; returns the port and the run.
+fn spawn_udp_run(
+    rig: &Rig,
+    client: &UdpSocket,
+    frames: u64,
+) -> (SocketAddr, std::thread::JoinHandle<RunOutcome>) {
+    let bind = free_port();
+    let plan = rig.plan(
+        StateSource::Udp {
+            bind,
+            sender: client.local_addr().unwrap(),
+        },
+        Some(frames),
+    );
+    (bind, spawn_run(plan, no_stop()))
+}
+
 // ---------------------------------------------------------------------------
 // 1. Simulated end-to-end run.
 
@@ -517,18 +535,8 @@ fn udp_closed_loop_renders_exactly_the_valid_in_order_states() {
     );
     let client = UdpSocket::bind("127.0.0.1:0").unwrap();
     let foreign = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let bind = free_port();
     let frames = 60;
-    let handle = spawn_run(
-        rig.plan(
-            StateSource::Udp {
-                bind,
-                sender: client.local_addr().unwrap(),
-            },
-            Some(frames),
-        ),
-        no_stop(),
-    );
+    let (bind, handle) = spawn_udp_run(&rig, &client, frames);
     let log = rig.path("frames.jsonl");
     // The socket is bound before the log is opened: once a (safe) frame is
     // logged, datagrams reach the driver.
@@ -657,18 +665,8 @@ fn state_timeout_shows_the_safe_black_frame() {
         1,
     );
     let client = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let bind = free_port();
     let frames = 24;
-    let handle = spawn_run(
-        rig.plan(
-            StateSource::Udp {
-                bind,
-                sender: client.local_addr().unwrap(),
-            },
-            Some(frames),
-        ),
-        no_stop(),
-    );
+    let (bind, handle) = spawn_udp_run(&rig, &client, frames);
     let log = rig.path("frames.jsonl");
     // No state yet: safe frames.
     wait_for_log(&log, "two frames", |r| r.len() >= 2);
