@@ -163,16 +163,25 @@ impl Display for SimDisplay {
         check_frame(frame, (self.width, self.height))?;
         let at = Instant::now();
         if self.keep != Some(0) {
+            // Reuse the oldest kept frame's memory once the window is full:
+            // a fresh screen-sized allocation per frame costs page faults.
+            let recycled = match self.keep {
+                Some(k) if self.frames.len() >= k => self.frames.pop_front(),
+                _ => None,
+            };
+            let pixels = match recycled {
+                Some(mut old) => {
+                    old.pixels.clear();
+                    old.pixels.extend_from_slice(frame);
+                    old.pixels
+                }
+                None => frame.to_vec(),
+            };
             self.frames.push_back(SimFrame {
                 index: self.presented,
-                pixels: frame.to_vec(),
+                pixels,
                 at,
             });
-            if let Some(k) = self.keep {
-                while self.frames.len() > k {
-                    self.frames.pop_front();
-                }
-            }
         }
         self.presented += 1;
         if self.close_after == Some(self.presented) {

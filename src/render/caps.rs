@@ -665,15 +665,16 @@ impl Footprint {
     /// Mean albedo over a pixel's footprint (k×k samples).
     #[inline]
     pub(super) fn mean(&self, map: &EquirectMap, k: usize) -> f64 {
-        let mut values = [0.0; 16];
-        let mut k_out = 0;
-        self.sample(map, k, &mut values, &mut k_out)
+        match k.clamp(1, 4) {
+            1 => self.sample_k::<1>(map, |_, _| ()),
+            2 => self.sample_k::<2>(map, |_, _| ()),
+            3 => self.sample_k::<3>(map, |_, _| ()),
+            _ => self.sample_k::<4>(map, |_, _| ()),
+        }
     }
 
     /// k×k samples over the footprint into `values` (k recorded in
-    /// `k_out`); returns their mean. Samples smaller than a texel are
-    /// bilinear; those stretched along longitude only read the map's
-    /// x-averaged levels; others average a box of their size.
+    /// `k_out`); returns their mean.
     #[inline]
     pub(super) fn sample(
         &self,
@@ -684,41 +685,77 @@ impl Footprint {
     ) -> f64 {
         let k = k.clamp(1, 4);
         *k_out = k;
+        let store = |i: usize, v: f64| values[i] = v;
+        match k {
+            1 => self.sample_k::<1>(map, store),
+            2 => self.sample_k::<2>(map, store),
+            3 => self.sample_k::<3>(map, store),
+            _ => self.sample_k::<4>(map, store),
+        }
+    }
+
+    /// K×K samples over the footprint, each passed to `store` (row-major
+    /// index); returns their mean. Samples smaller than a texel are
+    /// bilinear; those stretched along longitude only read the map's
+    /// x-averaged levels; others average a box of their size. All samples
+    /// of a footprint have the same size, so the choice is made once.
+    #[inline(always)]
+    fn sample_k<const K: usize>(
+        &self,
+        map: &EquirectMap,
+        mut store: impl FnMut(usize, f64),
+    ) -> f64 {
         let (a1, a2) = (self.a1, self.a2);
-        let bx = (a1.0.abs() + a2.0.abs()) / k as f64;
-        let by = (a1.1.abs() + a2.1.abs()) / k as f64;
-        let area = (a1.0 * a2.1 - a1.1 * a2.0).abs() / (k * k) as f64;
+        let kf = K as f64;
+        let bx = (a1.0.abs() + a2.0.abs()) / kf;
+        let by = (a1.1.abs() + a2.1.abs()) / kf;
+        let area = (a1.0 * a2.1 - a1.1 * a2.0).abs() / (K * K) as f64;
         let shrink = if bx * by > 0.0 {
             (area / (bx * by)).sqrt()
         } else {
             1.0
         };
         let (sx, sy) = (bx * shrink, by * shrink);
+        if sx <= 1.5 && sy <= 1.5 {
+            self.each::<K>(|x, y| map.sample_texel(x, y), &mut store)
+        } else if sy <= 1.5 {
+            let stretched = map.stretched(sx);
+            self.each::<K>(|x, y| stretched.sample(x, y), &mut store)
+        } else {
+            let (hx, hy) = (0.5 * (1.0 + sx * sx).sqrt(), 0.5 * (1.0 + sy * sy).sqrt());
+            self.each::<K>(
+                |x, y| {
+                    let (la, lo) = map.lat_lon_of(x, y);
+                    map.box_average(la, lo, hx, hy)
+                },
+                &mut store,
+            )
+        }
+    }
+
+    /// `value` at the centres of the K×K parts, passed to `store`; their
+    /// mean.
+    #[inline(always)]
+    fn each<const K: usize>(
+        &self,
+        value: impl Fn(f64, f64) -> f64,
+        store: &mut impl FnMut(usize, f64),
+    ) -> f64 {
+        let (a1, a2) = (self.a1, self.a2);
+        let kf = K as f64;
         let mut sum = 0.0;
-        for p in 0..k {
-            let v = (p as f64 + 0.5) / k as f64 - 0.5;
-            for q in 0..k {
-                let u = (q as f64 + 0.5) / k as f64 - 0.5;
+        for p in 0..K {
+            let v = (p as f64 + 0.5) / kf - 0.5;
+            for q in 0..K {
+                let u = (q as f64 + 0.5) / kf - 0.5;
                 let x = self.x + a1.0 * v + a2.0 * u;
                 let y = self.y + a1.1 * v + a2.1 * u;
-                let value = if sx <= 1.5 && sy <= 1.5 {
-                    map.sample_texel(x, y)
-                } else if sy <= 1.5 {
-                    map.sample_stretched(x, y, sx)
-                } else {
-                    let (la, lo) = map.lat_lon_of(x, y);
-                    map.box_average(
-                        la,
-                        lo,
-                        0.5 * (1.0 + sx * sx).sqrt(),
-                        0.5 * (1.0 + sy * sy).sqrt(),
-                    )
-                };
-                values[p * k + q] = value;
-                sum += value;
+                let s = value(x, y);
+                store(p * K + q, s);
+                sum += s;
             }
         }
-        sum / (k * k) as f64
+        sum / (K * K) as f64
     }
 }
 

@@ -29,6 +29,33 @@ pub struct EquirectMap {
     x_levels: OnceLock<Vec<Vec<f32>>>,
 }
 
+/// Samples of one footprint width from the longitude-averaged levels
+/// ([`EquirectMap::stretched`]).
+pub struct Stretched<'a> {
+    map: &'a EquirectMap,
+    levels: &'a [Vec<f32>],
+    lower: usize,
+    upper: usize,
+    frac: f64,
+}
+
+impl Stretched<'_> {
+    /// Mean over the footprint centred at continuous texel coordinates.
+    #[inline]
+    pub fn sample(&self, x: f64, y: f64) -> f64 {
+        let a = self
+            .map
+            .sample_level(&self.levels[self.lower], self.lower, x, y);
+        if self.frac <= 0.0 {
+            return a;
+        }
+        let b = self
+            .map
+            .sample_level(&self.levels[self.upper], self.upper, x, y);
+        a + (b - a) * self.frac
+    }
+}
+
 /// Latitude and longitude [rad] of a body-fixed direction (need not be unit).
 #[inline]
 pub fn lat_lon(n: DVec3) -> (f64, f64) {
@@ -232,9 +259,10 @@ impl EquirectMap {
 
     /// Bilinear sample of level `level` at level-0 texel coordinates.
     #[inline]
-    fn sample_level(&self, levels: &[Vec<f32>], level: usize, x: f64, y: f64) -> f64 {
-        let w = self.width >> level;
-        let x = (x + 0.5) / (1u64 << level) as f64 - 0.5;
+    fn sample_level(&self, level: &[f32], shift: usize, x: f64, y: f64) -> f64 {
+        let w = self.width >> shift;
+        // 2^-shift is exact: the same value as dividing by 2^shift.
+        let x = (x + 0.5) * f64::from_bits((1023 - shift as u64) << 52) - 0.5;
         let y = y.clamp(0.0, (self.height - 1) as f64);
         let x0 = x.floor();
         let y0 = y.floor().min((self.height - 2) as f64);
@@ -248,10 +276,32 @@ impl EquirectMap {
         let i1 = if i0 + 1 == w { 0 } else { i0 + 1 };
         let r0 = y0 as usize * w;
         let r1 = r0 + w;
-        let d = &levels[level];
+        let d = level;
         let top = d[r0 + i0] as f64 * (1.0 - tx) + d[r0 + i1] as f64 * tx;
         let bottom = d[r1 + i0] as f64 * (1.0 - tx) + d[r1 + i1] as f64 * tx;
         top * (1.0 - ty) + bottom * ty
+    }
+
+    /// Sampler of footprints `width` texels wide along x (longitude) and at
+    /// most ~1.5 texels tall: see [`Self::sample_stretched`]. The level
+    /// choice depends on the width only, so samples of one footprint share
+    /// it.
+    #[inline]
+    pub fn stretched(&self, width: f64) -> Stretched<'_> {
+        let levels = self.x_levels();
+        let top = (levels.len() - 1) as f64;
+        // A level-L sample (a 2^L box seen through a 2^L bilinear tent) has
+        // the spread of a box 1.7 × 2^L wide.
+        let l = (width / 1.7).max(1.0).log2().min(top);
+        let l0 = l.floor();
+        let lower = l0 as usize;
+        Stretched {
+            map: self,
+            levels,
+            lower,
+            upper: (lower + 1).min(levels.len() - 1),
+            frac: l - l0,
+        }
     }
 
     /// Mean over a footprint `width` texels wide along x (longitude) and
@@ -261,19 +311,7 @@ impl EquirectMap {
     /// along x only, so this replaces most box averages at 4 reads each.
     #[inline]
     pub fn sample_stretched(&self, x: f64, y: f64, width: f64) -> f64 {
-        let levels = self.x_levels();
-        let top = (levels.len() - 1) as f64;
-        // A level-L sample (a 2^L box seen through a 2^L bilinear tent) has
-        // the spread of a box 1.7 × 2^L wide.
-        let l = (width / 1.7).max(1.0).log2().min(top);
-        let l0 = l.floor();
-        let frac = l - l0;
-        let a = self.sample_level(levels, l0 as usize, x, y);
-        if frac <= 0.0 {
-            return a;
-        }
-        let b = self.sample_level(levels, (l0 as usize + 1).min(levels.len() - 1), x, y);
-        a + (b - a) * frac
+        self.stretched(width).sample(x, y)
     }
 
     fn sat(&self) -> &[f64] {
