@@ -86,8 +86,13 @@ impl InteriorMask {
             .enumerate()
             .for_each(|(jj, row)| {
                 let v = (roi.y0 + jj) as f64;
-                for (ii, ok) in row.iter_mut().enumerate() {
-                    *ok = rays.corner_ok(frame, (roi.x0 + ii) as f64, v);
+                let ok = |ii: usize| rays.corner_ok(frame, (roi.x0 + ii) as f64, v);
+                if rays.convex {
+                    fill_interval(row, ok);
+                } else {
+                    for (ii, c) in row.iter_mut().enumerate() {
+                        *c = ok(ii);
+                    }
                 }
             });
         // Where the lit disk is convex on the image (phase below 90°, no
@@ -175,6 +180,59 @@ impl InteriorMask {
             })
             .sum()
     }
+}
+
+/// Spacing [corners] of the coarse scan of [`fill_interval`].
+const SCAN_STEP: usize = 8;
+
+/// Set `row[i] = ok(i)` where `ok` holds on one interval of indices (a row
+/// of a convex region): a coarse scan finds it, bisection its ends. An
+/// interval shorter than the scan step may be missed, which only leaves
+/// its corners out (conservative: those pixels go to the lune's caps).
+fn fill_interval(row: &mut [bool], ok: impl Fn(usize) -> bool) {
+    row.fill(false);
+    let n = row.len();
+    let mut samples = (0..n).step_by(SCAN_STEP).chain(std::iter::once(n - 1));
+    let Some(first) = samples.by_ref().find(|&i| ok(i)) else {
+        return;
+    };
+    let mut last = first;
+    for i in samples {
+        if !ok(i) {
+            break;
+        }
+        last = i;
+    }
+    // Leftmost true in (first − step, first]: ok is monotone there.
+    let (mut lo, mut hi) = (first.saturating_sub(SCAN_STEP), first);
+    if lo == hi || ok(lo) {
+        hi = lo;
+    } else {
+        while hi - lo > 1 {
+            let mid = (lo + hi) / 2;
+            if ok(mid) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+    }
+    let start = hi;
+    // Rightmost true in [last, last + step).
+    let (mut lo, mut hi) = (last, (last + SCAN_STEP).min(n - 1));
+    if ok(hi) {
+        lo = hi;
+    } else {
+        while hi - lo > 1 {
+            let mid = (lo + hi) / 2;
+            if ok(mid) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+    }
+    row[start..=lo].fill(true);
 }
 
 /// Rays of the pixel grid against the body sphere, in the camera frame.
@@ -407,4 +465,31 @@ struct Surface {
     n_body: DVec3,
     /// d · n (negative on the visible side).
     d_n: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every interval of a row up to 40 wide, brute force as the reference:
+    /// the fill never marks a corner outside the interval, and finds the
+    /// interval exactly once it is at least one scan step long.
+    #[test]
+    fn fill_interval_finds_every_long_interval_and_never_overshoots() {
+        for n in [1, 2, 7, 8, 9, 17, 40] {
+            for a in 0..n {
+                for b in a..=n {
+                    let mut row = vec![true; n];
+                    fill_interval(&mut row, |i| (a..b).contains(&i));
+                    for (i, &c) in row.iter().enumerate() {
+                        assert!(!c || (a..b).contains(&i), "n {n} [{a}, {b}) marks {i}");
+                    }
+                    if b - a >= SCAN_STEP || (a == 0 && b > 0) || b == n && b > a {
+                        let count = row.iter().filter(|&&c| c).count();
+                        assert_eq!(count, b - a, "n {n} [{a}, {b})");
+                    }
+                }
+            }
+        }
+    }
 }
