@@ -4,10 +4,12 @@
 //! Two threads share the work. The *render* thread takes the newest state,
 //! renders the body's radiance on the screen's pixel grid as seen through the
 //! collimator (the screen is a pinhole of focal length f_collimator and the
-//! screen's pixel pitch), converts it into drive levels inside the body's
-//! region of interest and draws the frame-id block. The calling thread
-//! *presents* the frame at its slot, sends the sync line, waits for the
-//! acknowledgement if asked, and writes the log record. Two frame buffers
+//! screen's pixel pitch, or, with a geometric calibration, an ideal grid
+//! pre-warped onto the screen; see [`ScreenModel`]), converts it into drive
+//! levels inside the body's region of interest and draws the frame-id
+//! block. The calling thread *presents* the frame at its slot, sends the
+//! sync line, waits for the acknowledgement if asked, and writes the log
+//! record. Two frame buffers
 //! circulate between them, so frame k+1 is rendered while frame k is on
 //! screen, and nothing is allocated per frame.
 //!

@@ -484,9 +484,38 @@ impl PreWarp {
     /// operations per screen pixel).
     pub fn new(cal: &GeometryCalibration) -> PreWarp {
         let (w, h) = cal.screen;
-        let tan: Vec<[f64; 2]> = (0..h)
-            .into_par_iter()
-            .flat_map_iter(|j| (0..w).map(move |i| cal.direction(i as f64 + 0.5, j as f64 + 0.5)))
+        // Per-column and per-row weights: the lattice is a tensor product.
+        let cols: Vec<_> = (0..w)
+            .map(|i| cal.u.weights(i as f64 + 0.5, false))
+            .collect();
+        let rows: Vec<_> = (0..h)
+            .map(|j| cal.v.weights(j as f64 + 0.5, false))
+            .collect();
+        let nu = cal.u.nodes.len();
+        let (ku, kv) = (nu.min(4), cal.v.nodes.len().min(4));
+        let tan: Vec<[f64; 2]> = rows
+            .par_iter()
+            .flat_map_iter(|(sv, wv)| {
+                // Collapse the row weights first: 4 v-nodes → one row of u-nodes.
+                let mut line = vec![[0.0; 2]; nu];
+                for (b, &wb) in wv.iter().enumerate().take(kv) {
+                    for (l, t) in line
+                        .iter_mut()
+                        .zip(&cal.tan[(sv + b) * nu..(sv + b + 1) * nu])
+                    {
+                        l[0] += wb * t[0];
+                        l[1] += wb * t[1];
+                    }
+                }
+                cols.iter().map(move |(su, wu)| {
+                    let mut out = [0.0; 2];
+                    for (a, &wa) in wu.iter().enumerate().take(ku) {
+                        out[0] += wa * line[su + a][0];
+                        out[1] += wa * line[su + a][1];
+                    }
+                    out
+                })
+            })
             .collect();
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for t in &tan {
@@ -761,6 +790,35 @@ mod tests {
         let m = |u: f64, v: f64| [-u * 1e-3, v * 1e-3];
         GeometryCalibration::from_csv_bytes(csv(&us, &vs, m).as_bytes(), "m.csv", (40, 30))
             .unwrap();
+    }
+
+    #[test]
+    fn lookup_matches_the_interpolated_map() {
+        let (w, h) = (70, 50);
+        let f = |u: f64, v: f64| {
+            let (x, y) = ((u - 30.0) / 60.0, (v - 27.0) / 60.0);
+            let g = 1.0 + 0.2 * (x * x + y * y);
+            [x * g + 0.01 * y, y * g]
+        };
+        let g = GeometryCalibration::from_csv_bytes(
+            csv(&nodes(9.0, 70.0), &nodes(11.0, 50.0), f).as_bytes(),
+            "d.csv",
+            (w, h),
+        )
+        .unwrap();
+        let warp = PreWarp::new(&g);
+        let p = warp.ideal_pinhole();
+        for j in 0..h {
+            for i in 0..w {
+                let t = g.direction(i as f64 + 0.5, j as f64 + 0.5);
+                let (x, y) = warp.ideal_position(i, j);
+                let (ex, ey) = (p.fx * t[0] + p.cx, p.fy * t[1] + p.cy);
+                assert!((x - ex).abs() < 1e-4 && (y - ey).abs() < 1e-4, "({i},{j})");
+                assert!(
+                    x > 1.0 && y > 1.0 && x < p.width as f64 - 1.0 && y < p.height as f64 - 1.0
+                );
+            }
+        }
     }
 
     #[test]
