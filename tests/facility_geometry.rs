@@ -775,3 +775,35 @@ fn run_with_geometry_logs_its_sha256_and_shows_the_body() {
     let lit = (0..w * h).filter(|&k| frame[k] != 0 && k / w > 20).count();
     assert!(lit > 2000 && lit < 6000, "{lit} lit pixels");
 }
+
+#[test]
+fn cli_runs_the_bundled_warped_facility() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("f.jsonl");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
+        .current_dir(root)
+        .args([
+            "run",
+            "configs/facility_warped.toml",
+            "--frames",
+            "2",
+            "--log",
+        ])
+        .arg(&log)
+        .arg("--summary")
+        .arg(tmp.path().join("s.json"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "stderr: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let sha = sha256_hex(&std::fs::read(root.join("calib/example_geometry.csv")).unwrap());
+    let records = read_records(&log).unwrap();
+    assert_eq!(records.len(), 2);
+    assert!(records
+        .iter()
+        .all(|r| r.geometry_sha256.as_deref() == Some(sha.as_str()) && r.peak_radiance > 0.0));
+}

@@ -596,14 +596,13 @@ impl PreWarp {
         }
         let tx0 = ideal_roi.x / TILE;
         let ty0 = ideal_roi.y / TILE;
-        let tx1 = (ideal_roi.x + ideal_roi.width - 1) / TILE;
-        let ty1 = (ideal_roi.y + ideal_roi.height - 1) / TILE;
+        let tiles_y = self.tiles.len() / self.tiles_x;
+        let tx1 = ((ideal_roi.x + ideal_roi.width - 1) / TILE).min(self.tiles_x - 1);
+        let ty1 = ((ideal_roi.y + ideal_roi.height - 1) / TILE).min(tiles_y - 1);
         let mut b = TileBox::EMPTY;
         for ty in ty0..=ty1 {
             for tx in tx0..=tx1 {
-                if let Some(t) = self.tiles.get(ty * self.tiles_x + tx) {
-                    b.union(t);
-                }
+                b.union(&self.tiles[ty * self.tiles_x + tx]);
             }
         }
         (b.x0 < b.x1 && b.y0 < b.y1).then(|| {
