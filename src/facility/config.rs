@@ -24,6 +24,7 @@
 //! [calibration]
 //! lut = "example_lut.csv"     # relative to this file's directory
 //! # flat_field = "flat.tif"   # optional, Gray32Float of the screen size
+//! # geometry = "geometry.csv" # optional: screen pixel → camera direction; supersedes [alignment]
 //!
 //! [drive]
 //! scale_k = 1.0               # or: flight_exposure = .., facility_exposure = .. (s), k = flight/facility
@@ -148,6 +149,10 @@ pub struct CalibrationConfig {
     /// Flat-field TIFF.
     #[serde(default)]
     pub flat_field: Option<PathBuf>,
+    /// Geometric calibration CSV (see [`geometry`](super::geometry)); when
+    /// given, `[alignment]` must be absent or zero.
+    #[serde(default)]
+    pub geometry: Option<PathBuf>,
 }
 
 /// `[drive]`
@@ -362,6 +367,9 @@ impl FacilityConfig {
         if let Some(f) = &mut self.calibration.flat_field {
             fix(f);
         }
+        if let Some(g) = &mut self.calibration.geometry {
+            fix(g);
+        }
     }
 
     /// Checks every value's domain; errors name the field.
@@ -386,6 +394,16 @@ impl FacilityConfig {
         }
         if !a.rotation.is_finite() {
             return Err(Error::invalid("alignment.rotation", "must be finite"));
+        }
+        if self.calibration.geometry.is_some() {
+            let superseded = "must be absent or zero when calibration.geometry is given \
+                              (the geometry file already holds the screen's placement)";
+            if a.offset_px != [0.0, 0.0] {
+                return Err(Error::invalid("alignment.offset_px", superseded));
+            }
+            if a.rotation != 0.0 {
+                return Err(Error::invalid("alignment.rotation", superseded));
+            }
         }
         let d = &self.drive;
         if let Some(k) = d.scale_k {
@@ -568,6 +586,21 @@ state_timeout = 0.25
             ),
             (GOOD.replace("lut = \"lut.csv\"\n", ""), "lut"),
             (
+                GOOD.replace(
+                    "lut = \"lut.csv\"",
+                    "lut = \"lut.csv\"\ngeometry = \"g.csv\"",
+                ),
+                "alignment.offset_px",
+            ),
+            (
+                GOOD.replace(
+                    "lut = \"lut.csv\"",
+                    "lut = \"lut.csv\"\ngeometry = \"g.csv\"",
+                )
+                .replace("offset_px = [1.5, -2.0]", "offset_px = [0.0, 0.0]"),
+                "alignment.rotation",
+            ),
+            (
                 GOOD.replace("resolution = [1920, 1080]", "resolution = [8, 8]"),
                 "frame_id.cell_px",
             ),
@@ -603,5 +636,25 @@ scale_k = 1.0
         assert!(c.sync.port.is_none());
         assert!(!c.sync.ack);
         assert_eq!(c.alignment.offset_px, [0.0, 0.0]);
+        assert!(c.calibration.geometry.is_none());
+    }
+
+    #[test]
+    fn geometry_file_with_zero_or_absent_alignment() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("facility.toml");
+        let text = GOOD
+            .replace(
+                "lut = \"lut.csv\"",
+                "lut = \"lut.csv\"\ngeometry = \"g.csv\"",
+            )
+            .replace("offset_px = [1.5, -2.0]", "offset_px = [0.0, 0.0]")
+            .replace("rotation = 0.001", "rotation = 0.0");
+        std::fs::write(&p, &text).unwrap();
+        let c = FacilityConfig::load(&p).unwrap();
+        assert_eq!(c.calibration.geometry, Some(dir.path().join("g.csv")));
+        let absent = text.replace("[alignment]\noffset_px = [0.0, 0.0]\nrotation = 0.0\n", "");
+        assert!(!absent.contains("[alignment]"));
+        FacilityConfig::parse(&absent, "f.toml").unwrap();
     }
 }

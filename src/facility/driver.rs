@@ -4,10 +4,12 @@
 //! Two threads share the work. The *render* thread takes the newest state,
 //! renders the body's radiance on the screen's pixel grid as seen through the
 //! collimator (the screen is a pinhole of focal length f_collimator and the
-//! screen's pixel pitch), converts it into drive levels inside the body's
-//! region of interest and draws the frame-id block. The calling thread
-//! *presents* the frame at its slot, sends the sync line, waits for the
-//! acknowledgement if asked, and writes the log record. Two frame buffers
+//! screen's pixel pitch, or, with a geometric calibration, an ideal grid
+//! pre-warped onto the screen; see [`ScreenModel`]), converts it into drive
+//! levels inside the body's region of interest and draws the frame-id
+//! block. The calling thread *presents* the frame at its slot, sends the
+//! sync line, waits for the acknowledgement if asked, and writes the log
+//! record. Two frame buffers
 //! circulate between them, so frame k+1 is rendered while frame k is on
 //! screen, and nothing is allocated per frame.
 //!
@@ -30,6 +32,7 @@ use super::config::FacilityConfig;
 use super::display::Display;
 use super::dither::{ConvertSettings, Converter, Roi, ThresholdMatrix};
 use super::frame_id::FrameIdCode;
+use super::geometry::{GeometryCalibration, PreWarp};
 use super::log::{FrameLog, FrameRecord, Summary};
 use super::lut::{DisplayLut, FlatField};
 use super::serial::{CommandTemplate, FrameCommand, SendOutcome, SyncPort};
@@ -83,12 +86,20 @@ struct Job {
     safe: bool,
 }
 
-/// Static part of the screen-space renderer.
-struct ScreenModel {
+/// The static part of the screen-space renderer: what the camera sees on
+/// the screen. Either the screen pinhole turned by `alignment.rotation`, or,
+/// with a geometric calibration, an ideal pinhole grid pre-warped onto the
+/// screen.
+pub struct ScreenModel {
     renderer: Renderer,
     solid_angle: Vec<f32>,
     band_irradiance_1au: f64,
     albedo: Option<f64>,
+    screen: (usize, usize),
+    rotation: f64,
+    warp: Option<PreWarp>,
+    /// Radiance over the ideal ROI (pre-warp only).
+    ideal_target: Vec<f32>,
     roi_target: Vec<f32>,
 }
 
@@ -157,22 +168,45 @@ impl Budget {
 }
 
 /// Scene state of a trajectory state: the body pose defaults to the
-/// scene file's; the camera attitude is turned by the screen's rotation
-/// about the boresight.
-fn scene_state(s: &TrajectoryState, base: &State, screen_rotation: f64) -> State {
+/// scene file's.
+fn scene_state(s: &TrajectoryState, base: &State) -> State {
     State {
         body_position: s.body_position.unwrap_or(base.body_position),
         body_attitude: s.body_attitude.unwrap_or(base.body_attitude),
         camera_position: s.camera_position,
-        camera_attitude: s.camera_attitude * DQuat::from_rotation_z(screen_rotation),
+        camera_attitude: s.camera_attitude,
         sun_position: s.sun_position,
         occulter: base.occulter,
     }
 }
 
 impl ScreenModel {
-    fn new(config: &FacilityConfig, scene: &Scene) -> Self {
-        let pin = screen_pinhole(config);
+    /// Builds the model of `config`'s screen for `scene`; `geometry` (the
+    /// loaded `calibration.geometry`) replaces the screen pinhole and the
+    /// alignment.
+    pub fn new(
+        config: &FacilityConfig,
+        scene: &Scene,
+        geometry: Option<&GeometryCalibration>,
+    ) -> Self {
+        let warp = geometry.map(|g| {
+            let warp = PreWarp::new(g);
+            let nominal = config.collimator.focal_length / config.screen.pixel_pitch;
+            let f = warp.ideal_pinhole().fx;
+            if (f / nominal - 1.0).abs() > 0.05 {
+                tracing::warn!(
+                    file = %g.path().display(),
+                    scale_px = f,
+                    nominal_px = nominal,
+                    "geometry file's scale differs from collimator.focal_length / screen.pixel_pitch by more than 5 %"
+                );
+            }
+            warp
+        });
+        let pin = match &warp {
+            Some(w) => w.ideal_pinhole().clone(),
+            None => screen_pinhole(config),
+        };
         let renderer = Renderer::new(pin.clone());
         let solid_angle = pin.solid_angle_table();
         let cam = &scene.camera;
@@ -195,33 +229,64 @@ impl ScreenModel {
             solid_angle,
             band_irradiance_1au: bands[0].irradiance_1au,
             albedo,
+            screen: config.screen_size(),
+            rotation: if warp.is_some() {
+                0.0
+            } else {
+                config.alignment.rotation
+            },
+            warp,
+            ideal_target: Vec::new(),
             roi_target: Vec::new(),
         }
     }
 
-    /// Render the scene radiance [W m⁻² sr⁻¹] into `roi_target`; returns
-    /// the ROI (screen pixels) or None when nothing is visible.
-    fn render(&mut self, scene: &Scene, state: &State) -> Option<Roi> {
+    /// The grid the renderer draws on: the screen pinhole, or the ideal
+    /// grid of the pre-warp.
+    pub fn render_grid(&self) -> &Pinhole {
+        self.renderer.camera()
+    }
+
+    /// Renders the scene radiance [W m⁻² sr⁻¹] seen by the camera in
+    /// `state` onto the screen; returns the screen ROI ([`target`](Self::target)
+    /// holds its radiance, row-major) or None when nothing is visible.
+    pub fn render(&mut self, scene: &Scene, state: &State) -> Option<Roi> {
+        let mut st = *state;
+        // The screen's x axis is turned by `rotation` in the camera frame.
+        st.camera_attitude = state.camera_attitude * DQuat::from_rotation_z(self.rotation);
         let stats = self
             .renderer
-            .render_flux(&scene.body, state, &scene.render, self.albedo);
+            .render_flux(&scene.body, &st, &scene.render, self.albedo);
         let r = stats.roi;
-        if r.is_empty() {
-            return None;
-        }
         let w = self.renderer.camera().width;
         let flux = self.renderer.flux();
-        self.roi_target.clear();
+        let out = if self.warp.is_some() {
+            &mut self.ideal_target
+        } else {
+            &mut self.roi_target
+        };
+        out.clear();
         for row in r.y0..r.y1 {
             let k = row * w;
-            self.roi_target.extend(
+            out.extend(
                 flux[k + r.x0..k + r.x1]
                     .iter()
                     .zip(&self.solid_angle[k + r.x0..k + r.x1])
                     .map(|(&f, &o)| (self.band_irradiance_1au * f as f64 / o as f64) as f32),
             );
         }
-        Some(Roi::new(r.x0, r.y0, r.width(), r.height()))
+        let ideal = Roi::new(r.x0, r.y0, r.width(), r.height());
+        match &mut self.warp {
+            // Always called, so the previous frame's ideal radiance is cleared.
+            Some(warp) => warp.apply(ideal, &self.ideal_target, &mut self.roi_target),
+            None => (!r.is_empty()).then_some(ideal),
+        }
+    }
+
+    /// Screen radiance of the last [`render`](Self::render), row-major over
+    /// its ROI.
+    pub fn target(&self) -> &[f32] {
+        &self.roi_target
     }
 }
 
@@ -245,7 +310,6 @@ fn render_loop(
     mut source: Source,
     frames: Option<u64>,
     state_timeout: Duration,
-    screen_rotation: f64,
     stop: Arc<AtomicBool>,
     free: Receiver<Vec<u32>>,
     ready: SyncSender<Job>,
@@ -319,7 +383,7 @@ fn render_loop(
             }
         };
         if let Some(old) = drawn[slot].1.take() {
-            let w = model.renderer.camera().width;
+            let w = model.screen.0;
             for row in old.y..old.y + old.height {
                 buffer[row * w + old.x..row * w + old.x + old.width].fill(black);
             }
@@ -331,7 +395,7 @@ fn render_loop(
         };
         let mut roi = None;
         if let Some(s) = &state {
-            let st = scene_state(s, &scene.state, screen_rotation);
+            let st = scene_state(s, &scene.state);
             roi = model.render(&scene, &st);
         }
         let render_end = Instant::now();
@@ -407,6 +471,11 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         None => None,
     };
     let flat_sha = flat.as_ref().map(|f| f.sha256().to_string());
+    let geometry = match &config.calibration.geometry {
+        Some(p) => Some(GeometryCalibration::load(p, (w, h))?),
+        None => None,
+    };
+    let geometry_sha = geometry.as_ref().map(|g| g.sha256().to_string());
     let k = config.drive.k()?;
     let converter = Converter::new(
         lut,
@@ -459,7 +528,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         "facility scale k (flight radiance × k = screen radiance before τ and flat field)"
     );
 
-    let model = ScreenModel::new(config, &scene);
+    let model = ScreenModel::new(config, &scene, geometry.as_ref());
     let run_start = Instant::now();
     let mut log = FrameLog::open(&plan.log, run_start)?;
     let period = Duration::from_secs_f64(1.0 / config.screen.refresh_hz);
@@ -473,7 +542,6 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     let dropped = Arc::new(std::sync::atomic::AtomicU64::new(0));
     let render_stop = stop.clone();
     let render_dropped = dropped.clone();
-    let rotation = config.alignment.rotation;
     let pacer = config.timing.late_latch.then(|| {
         Arc::new(Pacer {
             base: run_start,
@@ -493,7 +561,6 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
                 source,
                 frames,
                 state_timeout,
-                rotation,
                 render_stop,
                 free_rx,
                 ready_tx,
@@ -584,6 +651,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
             k,
             lut_sha256: lut_sha.clone(),
             calibration_sha256: flat_sha.clone(),
+            geometry_sha256: geometry_sha.clone(),
             safe_frame: job.safe,
         };
         if let Err(e) = log.write(record) {

@@ -75,6 +75,9 @@ pub struct FrameRecord {
     pub lut_sha256: String,
     /// SHA-256 of the flat-field file (if any).
     pub calibration_sha256: Option<String>,
+    /// SHA-256 of the geometric calibration file (if any).
+    #[serde(default)]
+    pub geometry_sha256: Option<String>,
     /// The safe (black) frame was shown: no current state.
     #[serde(default)]
     pub safe_frame: bool,

@@ -5,6 +5,7 @@
 //! | [`trajectory`] | the [`State`](trajectory::State) type and open-loop CSV trajectories |
 //! | [`udp`] | closed-loop states over UDP (newest wins, stale/malformed counted) |
 //! | [`lut`] | display radiance LUT (PCHIP, inverse, SHA-256) and flat field |
+//! | [`geometry`] | geometric calibration file (screen pixel → camera direction) and the pre-warp |
 //! | [`dither`] | target radiance → drive levels in the body's ROI (k, τ, flat field, dithering) |
 //! | [`frame_id`] | frame number drawn as a binary block in a corner, and its decoder |
 //! | [`display`] | the [`Display`](display::Display) trait, simulated and full-screen X11 displays |
@@ -24,6 +25,7 @@ pub mod display;
 pub mod dither;
 pub mod driver;
 pub mod frame_id;
+pub mod geometry;
 pub mod log;
 pub mod lut;
 pub mod serial;
