@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Facility benchmark of BENCHMARKS.md: a 400 px Moon (full Oren-Nayar, albedo
 # map) on a 60 Hz screen, sim display and serial, N frames; prints the run
-# summary (missed deadlines, latency state->present) and the peak RSS.
+# summary (missed deadlines, latency state->present), the per-stage times,
+# and the resident memory sampled every second (steady after the first?).
 # usage: tools/bench_facility.sh [1920|2560] [FRAMES]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -16,9 +17,26 @@ esac
 python3 tools/make_hold.py out/bench/hold_$screen.csv "$frames" "$range"
 cargo build --release -q
 rm -f out/bench/frames_$screen.jsonl
+rss=out/bench/rss_$screen.txt
 /usr/bin/time -v ./target/release/optistim run configs/bench_facility_$screen.toml \
   --trajectory out/bench/hold_$screen.csv --log out/bench/frames_$screen.jsonl \
-  --summary out/bench/summary_$screen.json 2> out/bench/time_$screen.txt
+  --summary out/bench/summary_$screen.json 2> out/bench/time_$screen.txt &
+timer=$!
+# Resident set of the optistim process, once a second: "seconds kB".
+: > "$rss"
+start=$(date +%s)
+while kill -0 "$timer" 2>/dev/null; do
+  pid=$(pgrep -P "$timer" -x optistim || true)
+  if [ -n "$pid" ]; then
+    kb=$(awk '/^VmRSS/ {print $2}' "/proc/$pid/status" 2>/dev/null || true)
+    [ -n "$kb" ] && echo "$(( $(date +%s) - start )) $kb" >> "$rss"
+  fi
+  sleep 1
+done
+wait "$timer"
 grep -E "Maximum resident|Elapsed" out/bench/time_$screen.txt
+awk 'NR == 2 {first = $2} {last = $2; if ($2 > max) max = $2}
+     END {if (NR) printf "RSS after ~1 s %.1f MB, last %.1f MB, max %.1f MB (%d samples, %s)\n",
+          first / 1024, last / 1024, max / 1024, NR, FILENAME}' "$rss"
 cat out/bench/summary_$screen.json
 python3 tools/frame_log_stats.py out/bench/frames_$screen.jsonl
