@@ -22,6 +22,18 @@ pub struct Xvfb {
 
 impl Drop for Xvfb {
     fn drop(&mut self) {
+        // SIGTERM, so Xvfb removes its socket and lock file (SIGKILL leaves
+        // them, and stale ones pile up over the display numbers).
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
+        let end = Instant::now() + Duration::from_secs(3);
+        while Instant::now() < end {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
@@ -65,6 +77,7 @@ pub fn start(test: &str, (w, h): (usize, usize), extra: &[&str]) -> Option<Xvfb>
         return None;
     }
     for n in 91..200usize {
+        // A stale socket would pass for readiness below: skip it too.
         if Path::new(&format!("/tmp/.X11-unix/X{n}")).exists()
             || Path::new(&format!("/tmp/.X{n}-lock")).exists()
         {
