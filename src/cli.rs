@@ -325,7 +325,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
         }
         "window" => {
             let mut display = WindowDisplay::open(&WindowOptions {
-                monitor: plan.config.screen.monitor,
+                monitor: plan.config.screen.monitor.clone(),
+                resolution: Some((w, h)),
                 title: "optistim".into(),
             })?;
             driver::run(plan, &mut display, sync.as_mut(), stop)?

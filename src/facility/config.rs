@@ -10,7 +10,7 @@
 //! [screen]
 //! resolution = [1920, 1080]   # pixels
 //! pixel_pitch = 2.7e-4        # m
-//! monitor = 0                 # X screen number
+//! monitor = 0                 # RandR monitor: index (0 = first) or name, e.g. "DP-1"
 //! refresh_hz = 60.0
 //!
 //! [collimator]
@@ -59,6 +59,7 @@ use serde::Deserialize;
 
 use crate::error::{Error, Result};
 
+use super::display::MonitorSelect;
 use super::dither::DitherKind;
 use super::frame_id::Corner;
 
@@ -111,9 +112,9 @@ pub struct ScreenConfig {
     pub resolution: [usize; 2],
     /// Pixel pitch, m.
     pub pixel_pitch: f64,
-    /// X screen number.
+    /// Monitor of `$DISPLAY`'s default X screen: index or RandR name.
     #[serde(default)]
-    pub monitor: usize,
+    pub monitor: MonitorSelect,
     /// Refresh rate, Hz.
     pub refresh_hz: f64,
 }
@@ -378,6 +379,14 @@ impl FacilityConfig {
         if s.resolution[0] == 0 || s.resolution[1] == 0 {
             return Err(Error::invalid("screen.resolution", "must be non-zero"));
         }
+        if let MonitorSelect::Name(n) = &s.monitor {
+            if n.trim().is_empty() {
+                return Err(Error::invalid(
+                    "screen.monitor",
+                    "empty name: give a RandR monitor name or an index",
+                ));
+            }
+        }
         positive("screen.pixel_pitch", s.pixel_pitch)?;
         positive("screen.refresh_hz", s.refresh_hz)?;
         positive("collimator.focal_length", self.collimator.focal_length)?;
@@ -604,11 +613,38 @@ state_timeout = 0.25
                 GOOD.replace("resolution = [1920, 1080]", "resolution = [8, 8]"),
                 "frame_id.cell_px",
             ),
+            (
+                GOOD.replace("monitor = 0", "monitor = \"\""),
+                "screen.monitor",
+            ),
+            (GOOD.replace("monitor = 0", "monitor = -1"), "monitor"),
+            (GOOD.replace("monitor = 0", "monitor = 1.5"), "monitor"),
         ];
         for (text, key) in cases {
             let m = e(text);
             assert!(m.contains("cfg/f.toml") && m.contains(key), "{key}: {m}");
         }
+    }
+
+    #[test]
+    fn monitor_is_an_index_or_a_name() {
+        let m = |v: &str| {
+            FacilityConfig::parse(&GOOD.replace("monitor = 0", v), "f.toml")
+                .unwrap()
+                .screen
+                .monitor
+        };
+        assert_eq!(m("monitor = 0"), MonitorSelect::Index(0));
+        assert_eq!(m("monitor = 2"), MonitorSelect::Index(2));
+        assert_eq!(m("monitor = \"DP-1\""), MonitorSelect::Name("DP-1".into()));
+        assert_eq!(m(""), MonitorSelect::Index(0), "default: first monitor");
+        let e = FacilityConfig::parse(&GOOD.replace("monitor = 0", "monitor = true"), "f.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("monitor index") && e.contains("monitor name"),
+            "{e}"
+        );
     }
 
     #[test]
