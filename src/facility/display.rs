@@ -579,16 +579,6 @@ fn load_xlib() -> Result<x11_dl::xlib::Xlib> {
     x11_dl::xlib::Xlib::open().map_err(|e| Error::Other(format!("cannot load libX11: {e}")))
 }
 
-/// Native resolution of X screen `screen` on `$DISPLAY` (must be its
-/// default screen).
-pub fn x_screen_size(screen: usize) -> Result<(usize, usize)> {
-    let xlib = load_xlib()?;
-    let conn = XConn::open(&xlib)?;
-    let size = conn.screen_size(screen);
-    drop(conn);
-    size
-}
-
 /// The monitors of `$DISPLAY`'s default X screen, as [`WindowDisplay`]
 /// numbers them.
 pub fn x_monitors() -> Result<MonitorList> {
