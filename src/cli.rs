@@ -51,6 +51,8 @@ struct BenchRow {
     phase_deg: f64,
     interior: Interior,
     caps_per_pixel: f64,
+    texture_samples: usize,
+    node_spacing: usize,
     interior_pixels: usize,
     caps: u64,
     median_ms: f64,
@@ -59,6 +61,8 @@ struct BenchRow {
     pixel_error_p50: f64,
     pixel_error_p99: f64,
     pixel_error_max: f64,
+    /// Median wall time of each stage: layout, mask, caps, interior [ms].
+    stage_median_ms: [f64; 4],
 }
 
 /// Place the camera so that the phase angle at the body is `phase_deg`,
@@ -89,16 +93,36 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[k]
 }
 
+/// The settings `optistim bench` times: every combination of them at each
+/// phase (empty lists: the scene's setting).
+pub struct BenchSweep {
+    /// Phase angles [deg].
+    pub phases: Vec<f64>,
+    /// Caps per pixel.
+    pub densities: Vec<f64>,
+    /// `pixels` and/or `caps`.
+    pub interior: Vec<String>,
+    /// Map samples per axis.
+    pub texture_samples: Vec<usize>,
+    /// Interior node-lattice spacings [px].
+    pub node_spacings: Vec<usize>,
+}
+
 /// `optistim bench`: time against error for several densities, against the
 /// same renderer at 16× the highest linear... reference density.
 pub fn bench(
     scene_path: &Path,
-    phases: &[f64],
-    densities: &[f64],
-    interior: &[String],
+    sweep: &BenchSweep,
     repeats: usize,
     json: Option<&Path>,
 ) -> Result<()> {
+    let BenchSweep {
+        phases,
+        densities,
+        interior,
+        texture_samples,
+        node_spacings,
+    } = sweep;
     let modes = interior
         .iter()
         .map(|m| match m.as_str() {
@@ -110,6 +134,18 @@ pub fn bench(
         })
         .collect::<Result<Vec<_>>>()?;
     let base = Scene::from_file(scene_path)?;
+    let scene_samples = [base.render.texture_samples];
+    let scene_spacing = [base.render.node_spacing];
+    let node_spacings = if node_spacings.is_empty() {
+        &scene_spacing[..]
+    } else {
+        node_spacings
+    };
+    let texture_samples = if texture_samples.is_empty() {
+        &scene_samples[..]
+    } else {
+        texture_samples
+    };
     let pin = base.camera.pinhole.clone();
     let mut renderer = Renderer::new(pin.clone());
     let mut rows = Vec::new();
@@ -120,8 +156,8 @@ pub fn bench(
         pin.height,
         base.body.reflectance.name()
     );
-    println!("| phase [deg] | interior | caps/px | caps | interior px | median [ms] | p90 [ms] | flux error | pixel err p50 | p99 | max |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| phase [deg] | interior | caps/px | map samples | node spacing | caps | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for &phase in phases {
         let mut scene = base.clone();
         at_phase(&mut scene, phase);
@@ -135,24 +171,42 @@ pub fn bench(
         let reference: Vec<f32> = renderer.flux().to_vec();
         let ref_total: f64 = reference.iter().map(|&v| v as f64).sum();
         let ref_peak = reference.iter().cloned().fold(0.0f32, f32::max) as f64;
-        for (&mode, &density) in modes
-            .iter()
-            .flat_map(|m| densities.iter().map(move |d| (m, d)))
-        {
+        let points = modes.iter().flat_map(|&m| {
+            densities
+                .iter()
+                .flat_map(move |&d| texture_samples.iter().map(move |&k| (m, d, k)))
+                .flat_map(move |(m, d, k)| node_spacings.iter().map(move |&n| (m, d, k, n)))
+        });
+        for (mode, density, samples, spacing) in points {
+            settings.node_spacing = spacing;
             settings.caps_per_pixel = Some(density);
             settings.min_caps = scene.render.min_caps;
             settings.interior = mode;
+            settings.texture_samples = samples;
+            settings.check()?;
             let mut times = Vec::with_capacity(repeats);
+            let mut stages: [Vec<f64>; 4] = Default::default();
             let mut caps = 0;
             let mut interior_pixels = 0;
             for _ in 0..repeats.max(1) {
                 let t = Instant::now();
                 let stats = renderer.render_flux(&scene.body, &scene.state, &settings, None);
                 times.push(t.elapsed().as_secs_f64() * 1e3);
+                let st = stats.stages;
+                for (v, x) in stages
+                    .iter_mut()
+                    .zip([st.layout, st.mask, st.caps, st.interior])
+                {
+                    v.push(x * 1e3);
+                }
                 caps = stats.caps;
                 interior_pixels = stats.interior_pixels;
             }
             times.sort_by(f64::total_cmp);
+            let stage_median_ms = stages.map(|mut v| {
+                v.sort_by(f64::total_cmp);
+                percentile(&v, 0.5)
+            });
             let flux = renderer.flux();
             let total: f64 = flux.iter().map(|&v| v as f64).sum();
             // Per-pixel relative error over pixels above 1 % of the peak.
@@ -167,6 +221,8 @@ pub fn bench(
                 phase_deg: phase,
                 interior: mode,
                 caps_per_pixel: density,
+                texture_samples: samples,
+                node_spacing: spacing,
                 interior_pixels,
                 caps,
                 median_ms: percentile(&times, 0.5),
@@ -175,12 +231,16 @@ pub fn bench(
                 pixel_error_p50: percentile(&errors, 0.5),
                 pixel_error_p99: percentile(&errors, 0.99),
                 pixel_error_max: errors.last().copied().unwrap_or(f64::NAN),
+                stage_median_ms,
             };
+            let [lay, mask, cap, int] = stage_median_ms;
             println!(
-                "| {:.0} | {:?} | {} | {} | {} | {:.2} | {:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
+                "| {:.0} | {:?} | {} | {}×{} | {spacing} | {} | {} | {:.2} | {:.2} | {lay:.2} / {mask:.2} / {cap:.2} / {int:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
                 row.phase_deg,
                 row.interior,
                 row.caps_per_pixel,
+                samples,
+                samples,
                 row.caps,
                 row.interior_pixels,
                 row.median_ms,

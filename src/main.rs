@@ -48,6 +48,14 @@ enum Command {
         /// is always the lune's caps alone, at 4× the densest setting).
         #[arg(long, value_delimiter = ',', default_value = "pixels,caps")]
         interior: Vec<String>,
+        /// Albedo-map samples per pixel or cap along each axis (1–4) to
+        /// time; default: the scene's.
+        #[arg(long, value_delimiter = ',')]
+        texture_samples: Vec<usize>,
+        /// Interior node-lattice spacings [px] to time (1: every pixel
+        /// evaluated); default: the scene's.
+        #[arg(long, value_delimiter = ',')]
+        node_spacing: Vec<usize>,
         /// Repetitions per point (median reported).
         #[arg(long, default_value_t = 30)]
         repeats: usize,
@@ -100,13 +108,19 @@ fn main() -> ExitCode {
             phases,
             densities,
             interior,
+            texture_samples,
+            node_spacing,
             repeats,
             json,
         } => cli::bench(
             &scene,
-            &phases,
-            &densities,
-            &interior,
+            &cli::BenchSweep {
+                phases,
+                densities,
+                interior,
+                texture_samples,
+                node_spacings: node_spacing,
+            },
             repeats,
             json.as_deref(),
         ),

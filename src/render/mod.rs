@@ -19,6 +19,8 @@ pub mod interior;
 pub mod lune;
 pub mod output;
 
+use std::time::Instant;
+
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -53,6 +55,10 @@ pub struct RenderSettings {
     /// are integrated per pixel ([`interior`]), the rest by the lune's caps;
     /// `caps`: the lune's caps everywhere.
     pub interior: Interior,
+    /// Spacing [px] of the lattice on which interior pixels evaluate their
+    /// smooth factors (geometry, reflectance model, map footprint) and
+    /// interpolate them (`interior::Lattice`); 1 evaluates every pixel.
+    pub node_spacing: usize,
 }
 
 /// How the pixels inside the lit disk are integrated.
@@ -78,6 +84,7 @@ impl Default for RenderSettings {
             sub_bands: None,
             texture_samples: 2,
             interior: Interior::Pixels,
+            node_spacing: interior::DEFAULT_NODE_SPACING,
         }
     }
 }
@@ -98,6 +105,9 @@ impl RenderSettings {
         }
         if !(1..=4).contains(&self.texture_samples) {
             return Err(Error::invalid("render.texture_samples", "must be in 1..=4"));
+        }
+        if !(1..=16).contains(&self.node_spacing) {
+            return Err(Error::invalid("render.node_spacing", "must be in 1..=16"));
         }
         if let Some(n) = self.sub_bands {
             if n == 0 || n > 1000 {
@@ -141,6 +151,22 @@ pub struct RenderStats {
     /// Pixels that may hold signal.
     #[serde(skip)]
     pub roi: Rect,
+    /// Wall time of each stage.
+    pub stages: StageTimes,
+}
+
+/// Wall time [s] of the stages of one [`Renderer::render_flux`] call, in
+/// order; they sum to the call's time less clearing the last frame.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StageTimes {
+    /// Lune and cap layout: the recursive split with culling (serial).
+    pub layout: f64,
+    /// Interior-pixel classification and dropping the leaves it covers.
+    pub mask: f64,
+    /// Edge caps: integration, gridding and the workers' reduction.
+    pub caps: f64,
+    /// Interior pixels.
+    pub interior: f64,
 }
 
 /// One worker's accumulation buffer (over the ROI) and corner-row scratch.
@@ -250,6 +276,7 @@ impl Renderer {
         };
 
         // Lay out the caps: recursive split with culling.
+        let t_layout = Instant::now();
         self.leaves.clear();
         self.stack.clear();
         self.stack.push(Cell {
@@ -271,6 +298,8 @@ impl Renderer {
         }
 
         // Interior pixels: classify, and drop the leaves they cover.
+        let t_mask = Instant::now();
+        stats.stages.layout = (t_mask - t_layout).as_secs_f64();
         let rays = match settings.interior {
             Interior::Pixels => PixelRays::new(&frame),
             Interior::Caps => None,
@@ -285,6 +314,8 @@ impl Renderer {
                 .retain(|l| !m.covers(l.rect.x0, l.rect.y0, l.rect.x1, l.rect.y1));
         }
         stats.cells = self.leaves.len();
+        let t_caps = Instant::now();
+        stats.stages.mask = (t_caps - t_mask).as_secs_f64();
 
         // Balance the leaves over the workers by cap count.
         let caps: u64 = self
@@ -349,10 +380,15 @@ impl Renderer {
                     }
                 }
             });
+        let t_interior = Instant::now();
+        stats.stages.caps = (t_interior - t_caps).as_secs_f64();
         if let Some(r) = &rays {
-            stats.total_flux += self.interior.integrate(&frame, r, &mut self.flux, w);
+            stats.total_flux +=
+                self.interior
+                    .integrate(&frame, r, &mut self.flux, w, settings.node_spacing);
             stats.interior_pixels = self.interior.count();
         }
+        stats.stages.interior = t_interior.elapsed().as_secs_f64();
         self.dirty = roi;
         stats
     }

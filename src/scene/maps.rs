@@ -351,7 +351,9 @@ impl EquirectMap {
     pub fn box_average(&self, lat: f64, lon: f64, half_x: f64, half_y: f64) -> f64 {
         let (w, h) = (self.width, self.height);
         let sat = self.sat();
-        let x = (lon + PI) / TAU * w as f64;
+        // Callers may pass a longitude past ±π (a footprint straddling the
+        // seam): wrap it so the box starts in [0, W).
+        let x = ((lon + PI) / TAU * w as f64).rem_euclid(w as f64);
         let y = (FRAC_PI_2 - lat) / PI * h as f64;
         let half_x = half_x.min(0.5 * w as f64);
         let (y0, y1) = ((y - half_y).max(0.0), (y + half_y).min(h as f64));
@@ -532,6 +534,25 @@ mod tests {
         let a = m.sample(0.0, PI - 1e-9);
         let b = m.sample(0.0, -PI + 1e-9);
         assert!((a - b).abs() < 1e-6);
+    }
+
+    /// A box centred past the seam (longitude beyond ±π, as a footprint
+    /// straddling it gives) is the plain mean of the texels it wraps onto:
+    /// here the last column and the first.
+    #[test]
+    fn box_average_wraps_past_the_seam() {
+        let m = map(16, 8, |lat, lon| {
+            3.0 * lat + lon.sin() + 2.0 * (lon + 3.0).cos()
+        });
+        let lat = FRAC_PI_2 - 3.0 / 8.0 * PI; // the edge between rows 2 and 3
+        let mean = (m.data[2 * 16 + 15] + m.data[2 * 16] + m.data[3 * 16 + 15] + m.data[3 * 16])
+            as f64
+            / 4.0;
+        for turns in [-1.0, 0.0, 1.0] {
+            let lon = PI + turns * TAU; // the seam itself, seen from either side
+            let a = m.box_average(lat, lon, 1.0, 1.0);
+            assert!((a - mean).abs() < 1e-6, "lon {lon}: {a} against {mean}");
+        }
     }
 
     #[test]
