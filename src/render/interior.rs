@@ -5,7 +5,10 @@
 //! gives the geometry, the albedo is averaged over the preimage (k×k
 //! sub-footprints spanned by the exact tangent vectors of the hit), and the
 //! pixel's solid angle is the weight. One cap lands in one pixel, so no
-//! gridding is needed; this is what makes the facility's frame rate. Pixels
+//! gridding is needed; this is what makes the facility's frame rate. The
+//! smooth factors of that rule (geometry, model, footprint) come from a
+//! node lattice where they may (`Lattice`), so most pixels only read the
+//! map. Pixels
 //! near the limb, the terminator or a shadow edge stay with the lune's caps
 //! and their exact polygon gridding ([`super::caps`]).
 //!
@@ -158,7 +161,7 @@ impl InteriorMask {
 
     /// Write the flux of every interior pixel into `flux` (the whole image,
     /// row-major, `width` wide); returns their sum. With `node_spacing` > 1
-    /// the smooth factors come from the node lattice ([`Lattice`]) where
+    /// the smooth factors come from the node lattice (`Lattice`) where
     /// its stencil allows, else each pixel is evaluated directly.
     pub fn integrate(
         &mut self,
