@@ -56,6 +56,34 @@ impl Stretched<'_> {
     }
 }
 
+/// Bilinear sample of a `w` × `h` row-major grid at continuous texel
+/// coordinates (integer = texel centre); wraps in x, clamps in y.
+#[inline(always)]
+fn bilinear(data: &[f32], w: usize, h: usize, x: f64, y: f64) -> f64 {
+    let y = y.clamp(0.0, (h - 1) as f64);
+    let x0 = x.floor();
+    let y0 = y.floor().min((h - 2) as f64);
+    let (tx, ty) = (x - x0, y - y0);
+    let wi = w as i64;
+    let xi = x0 as i64;
+    // Samples stay within a few texels of [0, w): wrap without a division.
+    let i0 = if (0..wi).contains(&xi) {
+        xi as usize
+    } else if xi < 0 && xi >= -wi {
+        (xi + wi) as usize
+    } else if xi >= wi && xi < 2 * wi {
+        (xi - wi) as usize
+    } else {
+        xi.rem_euclid(wi) as usize
+    };
+    let i1 = if i0 + 1 == w { 0 } else { i0 + 1 };
+    let r0 = y0 as usize * w;
+    let (top, bottom) = (&data[r0..r0 + w], &data[r0 + w..r0 + 2 * w]);
+    let t = top[i0] as f64 * (1.0 - tx) + top[i1] as f64 * tx;
+    let b = bottom[i0] as f64 * (1.0 - tx) + bottom[i1] as f64 * tx;
+    t * (1.0 - ty) + b * ty
+}
+
 /// Latitude and longitude [rad] of a body-fixed direction (need not be unit).
 #[inline]
 pub fn lat_lon(n: DVec3) -> (f64, f64) {
@@ -196,29 +224,7 @@ impl EquirectMap {
     /// centre); wraps in x, clamps in y.
     #[inline]
     pub fn sample_texel(&self, x: f64, y: f64) -> f64 {
-        let y = y.clamp(0.0, (self.height - 1) as f64);
-        let x0 = x.floor();
-        let y0 = y.floor().min((self.height - 2) as f64);
-        let (tx, ty) = (x - x0, y - y0);
-        let w = self.width as i64;
-        let xi = x0 as i64;
-        // Samples stay within a few texels of [0, W): wrap without a division.
-        let i0 = if xi < 0 && xi >= -w {
-            (xi + w) as usize
-        } else if xi >= w && xi < 2 * w {
-            (xi - w) as usize
-        } else if (0..w).contains(&xi) {
-            xi as usize
-        } else {
-            xi.rem_euclid(w) as usize
-        };
-        let i1 = if i0 + 1 == self.width { 0 } else { i0 + 1 };
-        let r0 = y0 as usize * self.width;
-        let r1 = r0 + self.width;
-        let d = &self.data;
-        let top = d[r0 + i0] as f64 * (1.0 - tx) + d[r0 + i1] as f64 * tx;
-        let bottom = d[r1 + i0] as f64 * (1.0 - tx) + d[r1 + i1] as f64 * tx;
-        top * (1.0 - ty) + bottom * ty
+        bilinear(&self.data, self.width, self.height, x, y)
     }
 
     /// Bilinear sample at latitude/longitude [rad]; wraps in longitude,
@@ -260,26 +266,9 @@ impl EquirectMap {
     /// Bilinear sample of level `level` at level-0 texel coordinates.
     #[inline]
     fn sample_level(&self, level: &[f32], shift: usize, x: f64, y: f64) -> f64 {
-        let w = self.width >> shift;
         // 2^-shift is exact: the same value as dividing by 2^shift.
         let x = (x + 0.5) * f64::from_bits((1023 - shift as u64) << 52) - 0.5;
-        let y = y.clamp(0.0, (self.height - 1) as f64);
-        let x0 = x.floor();
-        let y0 = y.floor().min((self.height - 2) as f64);
-        let (tx, ty) = (x - x0, y - y0);
-        let (xi, wi) = (x0 as i64, w as i64);
-        let i0 = if (0..wi).contains(&xi) {
-            xi as usize
-        } else {
-            xi.rem_euclid(wi) as usize
-        };
-        let i1 = if i0 + 1 == w { 0 } else { i0 + 1 };
-        let r0 = y0 as usize * w;
-        let r1 = r0 + w;
-        let d = level;
-        let top = d[r0 + i0] as f64 * (1.0 - tx) + d[r0 + i1] as f64 * tx;
-        let bottom = d[r1 + i0] as f64 * (1.0 - tx) + d[r1 + i1] as f64 * tx;
-        top * (1.0 - ty) + bottom * ty
+        bilinear(level, self.width >> shift, self.height, x, y)
     }
 
     /// Sampler of footprints `width` texels wide along x (longitude) and at
