@@ -91,6 +91,7 @@ struct Facility {
     state_timeout: f64,
     lut: &'static str,
     flat_field: Option<&'static str>,
+    refreshes_per_frame: u32,
 }
 
 impl Default for Facility {
@@ -100,6 +101,7 @@ impl Default for Facility {
             state_timeout: 0.5,
             lut: "lut.csv",
             flat_field: None,
+            refreshes_per_frame: 1,
         }
     }
 }
@@ -149,7 +151,9 @@ ack_timeout = 0.005
 
 [timing]
 state_timeout = {timeout}
+refreshes_per_frame = {per_frame}
 "#,
+            per_frame = self.refreshes_per_frame,
             refresh = self.refresh_hz,
             timeout = self.state_timeout,
             lut = self.lut,
@@ -409,6 +413,53 @@ fn sim_end_to_end_replay() {
     assert_eq!(summary.frames, 5);
     assert_eq!(summary.dropped_states, 0);
     assert_same_summary(&rig.summary_file(), &summary);
+}
+
+/// `timing.refreshes_per_frame = 3` at 60 Hz: slots are 50 ms long. Every
+/// frame's deadline (end of its slot's first refresh) lies a whole number of
+/// slots after the previous one, and no frame is presented before its slot
+/// starts. Holds however slow the machine is; a 17 ms grid would fail it.
+#[test]
+fn frames_are_paced_on_slots_of_several_refreshes() {
+    let rig = Rig::new(
+        Facility {
+            refreshes_per_frame: 3,
+            ..Default::default()
+        },
+        6,
+    );
+    let mut display = SimDisplay::keep_all(W, H);
+    let mut sync = SimSync::new();
+    let summary = driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap();
+    assert_eq!(summary.frames, 6);
+    let refresh = 1.0 / 60.0;
+    let slot = 3.0 * refresh;
+    let records = rig.records();
+    for r in &records {
+        assert!(
+            r.t_presented >= r.deadline - refresh - 1e-6,
+            "frame {} presented at {} before its slot (deadline {})",
+            r.frame,
+            r.t_presented,
+            r.deadline
+        );
+    }
+    for w in records.windows(2) {
+        let slots = (w[1].deadline - w[0].deadline) / slot;
+        assert!(
+            slots > 1.0 - 1e-6 && (slots - slots.round()).abs() < 1e-6,
+            "frames {} and {}: deadlines {} slots apart",
+            w[0].frame,
+            w[1].frame,
+            slots
+        );
+    }
 }
 
 // ---------------------------------------------------------------------------

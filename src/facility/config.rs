@@ -48,6 +48,7 @@
 //!
 //! [timing]
 //! state_timeout = 0.5         # s
+//! refreshes_per_frame = 1     # frame rate = refresh_hz / this
 //! ```
 //!
 //! Unknown keys are errors. Parse errors name the file, line and key;
@@ -300,6 +301,15 @@ pub struct TimingConfig {
     /// free.
     #[serde(default = "default_late_latch")]
     pub late_latch: bool,
+    /// Screen refreshes each frame is shown for: the frame rate is
+    /// `screen.refresh_hz / refreshes_per_frame`. Each frame must be up by
+    /// the first refresh of its slot, so it is shown for all of them.
+    #[serde(default = "default_refreshes_per_frame")]
+    pub refreshes_per_frame: u32,
+}
+
+fn default_refreshes_per_frame() -> u32 {
+    1
 }
 
 fn default_state_timeout() -> f64 {
@@ -315,6 +325,7 @@ impl Default for TimingConfig {
         TimingConfig {
             state_timeout: default_state_timeout(),
             late_latch: default_late_latch(),
+            refreshes_per_frame: default_refreshes_per_frame(),
         }
     }
 }
@@ -469,6 +480,12 @@ impl FacilityConfig {
             return Err(Error::invalid("sync.baud", "must be > 0"));
         }
         positive("timing.state_timeout", self.timing.state_timeout)?;
+        if !(1..=120).contains(&self.timing.refreshes_per_frame) {
+            return Err(Error::invalid(
+                "timing.refreshes_per_frame",
+                "must be in 1..=120",
+            ));
+        }
         Ok(())
     }
 
@@ -592,6 +609,13 @@ state_timeout = 0.25
             (
                 GOOD.replace("state_timeout = 0.25", "state_timeout = 0"),
                 "timing.state_timeout",
+            ),
+            (
+                GOOD.replace(
+                    "state_timeout = 0.25",
+                    "state_timeout = 0.25\nrefreshes_per_frame = 0",
+                ),
+                "timing.refreshes_per_frame",
             ),
             (GOOD.replace("lut = \"lut.csv\"\n", ""), "lut"),
             (

@@ -531,7 +531,10 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     let model = ScreenModel::new(config, &scene, geometry.as_ref());
     let run_start = Instant::now();
     let mut log = FrameLog::open(&plan.log, run_start)?;
-    let period = Duration::from_secs_f64(1.0 / config.screen.refresh_hz);
+    // A frame's slot is `refreshes_per_frame` refreshes; it must be up by
+    // the end of the slot's first refresh.
+    let refresh = Duration::from_secs_f64(1.0 / config.screen.refresh_hz);
+    let period = refresh * config.timing.refreshes_per_frame;
     let state_timeout = Duration::from_secs_f64(config.timing.state_timeout);
     let (free_tx, free_rx): (Sender<Vec<u32>>, Receiver<Vec<u32>>) = channel();
     let (ready_tx, ready_rx) = sync_channel::<Job>(1);
@@ -588,17 +591,17 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         if !display.is_open() {
             break;
         }
-        // Slots form a fixed grid of refresh periods from the first frame.
-        // A frame must be presented before the end of its slot; one that
-        // is not has left the previous frame on screen for an extra
-        // refresh (a missed deadline), and the next frame takes the first
-        // slot that has not yet ended.
+        // Slots form a fixed grid of frame periods (refreshes_per_frame
+        // refreshes) from the first frame. A frame must be presented before
+        // the end of its slot's first refresh; one that is not has left the
+        // previous frame on screen for an extra refresh (a missed deadline),
+        // and the next frame takes the first slot that has not yet ended.
         let slot = *schedule.get_or_insert_with(Instant::now);
         let now = Instant::now();
         if slot > now {
             std::thread::sleep(slot - now);
         }
-        let deadline = slot + period;
+        let deadline = slot + refresh;
         let present_start = Instant::now();
         let presented = match display.present(&job.buffer) {
             Ok(t) => t,
