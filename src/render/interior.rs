@@ -347,7 +347,16 @@ impl Lattice {
         let rho = match &frame.body.albedo_map {
             None => 1.0,
             Some(map) => {
-                let x = q[2].rem_euclid(self.map_width);
+                // Back into [0, W) (a division-free rem_euclid: x is within
+                // a map width of it).
+                let w = self.map_width;
+                let x = if q[2] < 0.0 {
+                    q[2] + w
+                } else if q[2] >= w {
+                    q[2] - w
+                } else {
+                    q[2]
+                };
                 Footprint {
                     x,
                     y: q[3],
