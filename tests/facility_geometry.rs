@@ -13,7 +13,6 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{DQuat, DVec3};
-use sha2::{Digest, Sha256};
 
 use optistim::facility::config::FacilityConfig;
 use optistim::facility::display::SimDisplay;
@@ -25,7 +24,7 @@ use optistim::facility::serial::SimSync;
 use optistim::facility::trajectory::Trajectory;
 use optistim::scene::Scene;
 
-use common::{pixel_solid_angle, AU};
+use common::{pixel_solid_angle, sha256_hex, test_lut_csv, AU};
 
 const PITCH: f64 = 2.768e-4;
 const MOON_R: f64 = 1737.4e3;
@@ -147,24 +146,6 @@ fn radial_model(w: usize, h: usize, f: f64, k1: f64) -> impl Fn(f64, f64) -> [f6
     }
 }
 
-fn lut_csv() -> String {
-    let mut s = String::from("drive_level,radiance_w_m2_sr\n");
-    for l in 0..=255u32 {
-        s.push_str(&format!(
-            "{l},{}\n",
-            0.5 * (l as f64 / 255.0).powf(2.2) + 5e-4
-        ));
-    }
-    s
-}
-
-fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
-
 /// Temporary facility directory.
 struct Rig {
     dir: tempfile::TempDir,
@@ -175,7 +156,7 @@ impl Rig {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path();
         std::fs::write(p.join("scene.toml"), scene).unwrap();
-        std::fs::write(p.join("lut.csv"), lut_csv()).unwrap();
+        std::fs::write(p.join("lut.csv"), test_lut_csv()).unwrap();
         std::fs::write(p.join("facility.toml"), facility).unwrap();
         if let Some(g) = geometry {
             std::fs::write(p.join("geometry.csv"), g).unwrap();

@@ -8,13 +8,14 @@
 //! independent gamma-2.2 curve given at all 256 levels, so the radiance of
 //! each displayed level is known here without the library's interpolant.
 
+mod common;
+
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use sha2::{Digest, Sha256};
 use tempfile::TempDir;
 
 use optistim::facility::config::FacilityConfig;
@@ -32,9 +33,7 @@ use optistim::scene::Scene;
 const W: usize = 320;
 const H: usize = 240;
 /// Test LUT: radiance = L_MAX·(level/255)^2.2 + BLACK (W m⁻² sr⁻¹).
-const L_MAX: f64 = 0.5;
-const BLACK: f64 = 5.0e-4;
-const GAMMA: f64 = 2.2;
+const L_MAX: f64 = common::TEST_LUT_MAX;
 /// k = flight_exposure / facility_exposure of the test facility file.
 const K: f64 = 0.01;
 const TAU: f64 = 0.85;
@@ -43,19 +42,7 @@ const TAU: f64 = 0.85;
 const RANGE: f64 = 4.7e8;
 const SUN: [f64; 3] = [7.48e10, 0.0, -1.29557e11];
 
-/// Radiance of drive level `level` of the test LUT (independent of the
-/// library's LUT code).
-fn lut_radiance(level: u32) -> f64 {
-    L_MAX * (level as f64 / 255.0).powf(GAMMA) + BLACK
-}
-
-fn gamma_lut_csv() -> String {
-    let mut s = String::from("# gamma 2.2 test LUT\ndrive_level,radiance_w_m2_sr\n");
-    for l in 0..=255u32 {
-        s.push_str(&format!("{l},{}\n", lut_radiance(l)));
-    }
-    s
-}
+use common::{sha256_hex, test_lut_csv, test_lut_radiance};
 
 const SCENE: &str = r#"
 [camera]
@@ -173,7 +160,7 @@ impl Rig {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path();
         std::fs::write(p.join("scene.toml"), SCENE).unwrap();
-        std::fs::write(p.join("lut.csv"), gamma_lut_csv()).unwrap();
+        std::fs::write(p.join("lut.csv"), test_lut_csv()).unwrap();
         std::fs::write(p.join("trajectory.csv"), trajectory_csv(states)).unwrap();
         std::fs::write(p.join("facility.toml"), f.toml()).unwrap();
         let config = FacilityConfig::load(p.join("facility.toml")).unwrap();
@@ -271,13 +258,6 @@ fn datagram(t: f64, cam_z: f64) -> String {
 
 fn frame_id_code() -> FrameIdCode {
     FrameIdCode::new(true, Corner::TopLeft, 24, 4, 8, (W, H)).unwrap()
-}
-
-fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
 }
 
 /// Drive level of a frame-buffer pixel; the pixel must be grey.
@@ -502,7 +482,7 @@ fn drive_levels_invert_the_lut() {
     let target = expected_screen_radiance(&rig);
     let peak = target.iter().cloned().fold(0.0, f64::max);
     assert!(
-        peak > 0.3 * L_MAX && peak < lut_radiance(255),
+        peak > 0.3 * L_MAX && peak < test_lut_radiance(255),
         "test setup: peak screen radiance {peak} should use most of the LUT without clipping"
     );
     let block = frame_id_code().region();
@@ -519,14 +499,17 @@ fn drive_levels_invert_the_lut() {
             let i = y * W + x;
             let t = target[i];
             let lv = level(frame[i]);
-            if t < lut_radiance(0) {
+            if t < test_lut_radiance(0) {
                 assert_eq!(lv, 0, "({x}, {y}): target {t} below black");
                 continue;
             }
-            let shown = lut_radiance(lv);
+            let shown = test_lut_radiance(lv);
             // The two levels bracketing t: L_k ≤ t < L_{k+1}.
-            let k = (0..255u32).rev().find(|&k| lut_radiance(k) <= t).unwrap();
-            let step = lut_radiance(k + 1) - lut_radiance(k);
+            let k = (0..255u32)
+                .rev()
+                .find(|&k| test_lut_radiance(k) <= t)
+                .unwrap();
+            let step = test_lut_radiance(k + 1) - test_lut_radiance(k);
             assert!(
                 (shown - t).abs() <= step * (1.0 + 1e-9),
                 "({x}, {y}): target {t}, level {lv} shows {shown}, step {step}"
@@ -548,13 +531,13 @@ fn drive_levels_invert_the_lut() {
             let px: Vec<usize> = (by..by + 8)
                 .flat_map(|y| (bx..bx + 8).map(move |x| y * W + x))
                 .collect();
-            if px.iter().any(|&i| target[i] < lut_radiance(0)) {
+            if px.iter().any(|&i| target[i] < test_lut_radiance(0)) {
                 continue;
             }
             let mean_t: f64 = px.iter().map(|&i| target[i]).sum::<f64>() / 64.0;
             let mean_d: f64 = px
                 .iter()
-                .map(|&i| lut_radiance(level(frame[i])))
+                .map(|&i| test_lut_radiance(level(frame[i])))
                 .sum::<f64>()
                 / 64.0;
             let rel = (mean_d - mean_t).abs() / mean_t;

@@ -208,3 +208,36 @@ pub const IMG2: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/data/amie/AMI_EE3_041028_00101_00010.IMG"
 );
+
+/// The facility tests' display: drive level l (0–255) gives
+/// `TEST_LUT_MAX` (l/255)^2.2 + `TEST_LUT_BLACK` W m⁻² sr⁻¹, written here
+/// independently of the library's LUT code.
+pub const TEST_LUT_MAX: f64 = 0.5;
+/// Black level of the test display [W m⁻² sr⁻¹].
+pub const TEST_LUT_BLACK: f64 = 5.0e-4;
+/// Gamma of the test display.
+pub const TEST_LUT_GAMMA: f64 = 2.2;
+
+/// Radiance of drive level `level` of the test display.
+pub fn test_lut_radiance(level: u32) -> f64 {
+    TEST_LUT_MAX * (level as f64 / 255.0).powf(TEST_LUT_GAMMA) + TEST_LUT_BLACK
+}
+
+/// The test display's LUT file (`calibration.lut`).
+pub fn test_lut_csv() -> String {
+    let mut s = String::from("# gamma 2.2 test LUT\ndrive_level,radiance_w_m2_sr\n");
+    for l in 0..=255u32 {
+        s.push_str(&format!("{l},{}\n", test_lut_radiance(l)));
+    }
+    s
+}
+
+/// SHA-256 of `bytes` in lower-case hex, as the frame log records file
+/// hashes (computed here with the sha2 crate).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
