@@ -3,22 +3,34 @@
 # map) on a 60 Hz screen, sim display and serial, N frames; prints the run
 # summary (missed deadlines, latency state->present), the per-stage times,
 # and the resident memory sampled every second (steady after the first?).
-# usage: tools/bench_facility.sh [1920|2560] [FRAMES]
+# With N > 1 each frame is shown for N refreshes ([timing]
+# refreshes_per_frame), the trajectory sampled at 60/N Hz.
+# usage: tools/bench_facility.sh [1920|2560] [FRAMES] [N]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 screen=${1:-1920}
 frames=${2:-3600}
+per_frame=${3:-1}
 mkdir -p out/bench
 case $screen in
   1920) range=9.415e7 ;;   # 400 px at 92.3 µrad/px
   2560) range=1.1181e8 ;;  # 400 px at 77.7 µrad/px
   *) echo "screen must be 1920 or 2560" >&2; exit 2 ;;
 esac
-python3 tools/make_hold.py out/bench/hold_$screen.csv "$frames" "$range"
+rate=$(python3 -c "print(60.0 / $per_frame)")
+python3 tools/make_hold.py out/bench/hold_$screen.csv "$frames" "$range" "$rate"
+config=configs/bench_facility_$screen.toml
+if [ "$per_frame" != 1 ]; then
+  # The same facility with the frame clock divided; paths made absolute.
+  config=out/bench/bench_facility_${screen}_n$per_frame.toml
+  sed -e "s#^scene = \"#scene = \"$PWD/configs/#" -e "s#\"\.\./calib#\"$PWD/calib#" \
+      -e "s#^\[timing\]#[timing]\nrefreshes_per_frame = $per_frame#" \
+      configs/bench_facility_$screen.toml > "$config"
+fi
 cargo build --release -q
 rm -f out/bench/frames_$screen.jsonl
 rss=out/bench/rss_$screen.txt
-/usr/bin/time -v ./target/release/optistim run configs/bench_facility_$screen.toml \
+/usr/bin/time -v ./target/release/optistim run "$config" \
   --trajectory out/bench/hold_$screen.csv --log out/bench/frames_$screen.jsonl \
   --summary out/bench/summary_$screen.json 2> out/bench/time_$screen.txt &
 timer=$!
