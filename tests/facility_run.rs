@@ -442,6 +442,44 @@ fn frames_are_paced_on_slots_of_several_refreshes() {
     }
 }
 
+/// Late latching (the default) starts each frame as late as its recent
+/// render times allow before the slot it will be shown in, so the state
+/// shown is at most about one render old: with 100 ms slots and a scene
+/// that renders in milliseconds, state → present stays well under a slot.
+/// (Counting the slot from the last frame presented rather than the last
+/// queued one would make it two slots.)
+#[test]
+fn late_latching_shows_a_state_younger_than_one_slot() {
+    let rig = Rig::new(
+        Facility {
+            refreshes_per_frame: 6,
+            ..Default::default()
+        },
+        10,
+    );
+    let mut display = SimDisplay::keep_all(W, H);
+    let mut sync = SimSync::new();
+    driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap();
+    let slot = 6.0 / 60.0;
+    // The first frames start before the pacing is known.
+    let mut latencies: Vec<f64> = rig.records()[3..]
+        .iter()
+        .map(|r| r.t_presented - r.t_state_received.unwrap())
+        .collect();
+    latencies.sort_by(f64::total_cmp);
+    let median = latencies[latencies.len() / 2];
+    assert!(
+        median < 0.75 * slot,
+        "median state → present {median} s with {slot} s slots: {latencies:?}"
+    );
+}
+
 // ---------------------------------------------------------------------------
 // 2. The drive levels invert the LUT.
 

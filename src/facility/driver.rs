@@ -122,27 +122,29 @@ pub const BUDGET_WINDOW: usize = 60;
 /// Safety margin added to the late-latching budget.
 const BUDGET_MARGIN: Duration = Duration::from_millis(2);
 
-/// Shared by the two threads for late latching: the next slot and the
-/// recent present times.
+/// Shared by the two threads for late latching: the next free slot with
+/// the frame that will take it, and the recent present times.
 struct Pacer {
-    base: Instant,
-    /// Next slot, ns after `base` (0: unknown).
-    next_slot_ns: std::sync::atomic::AtomicU64,
+    /// Next slot and the id of the frame to be presented in it (None:
+    /// nothing presented yet).
+    next: std::sync::Mutex<Option<(Instant, u64)>>,
     /// Largest present duration seen recently, ns.
     present_ns: std::sync::atomic::AtomicU64,
 }
 
 impl Pacer {
-    fn next_slot(&self) -> Option<Instant> {
-        match self.next_slot_ns.load(Ordering::Acquire) {
-            0 => None,
-            ns => Some(self.base + Duration::from_nanos(ns)),
-        }
+    /// The slot frame `frame` will be shown in if the frames before it are
+    /// on time: frames are presented in order, one per slot.
+    fn slot_of(&self, frame: u64, period: Duration) -> Option<Instant> {
+        let (slot, next_frame) = (*self.next.lock().ok()?)?;
+        let ahead = frame.saturating_sub(next_frame).min(1 << 20) as u32;
+        Some(slot + period * ahead)
     }
 
-    fn set_next_slot(&self, at: Instant) {
-        let ns = at.saturating_duration_since(self.base).as_nanos().max(1) as u64;
-        self.next_slot_ns.store(ns, Ordering::Release);
+    fn set_next(&self, slot: Instant, frame: u64) {
+        if let Ok(mut next) = self.next.lock() {
+            *next = Some((slot, frame));
+        }
     }
 }
 
@@ -321,7 +323,6 @@ fn render_loop(
     let mut budget = Budget {
         recent: std::collections::VecDeque::with_capacity(BUDGET_WINDOW),
     };
-    let mut last_target: Option<Instant> = None;
     let mut last: Option<(TrajectoryState, Instant)> = None;
     // ROI last drawn into each buffer, by buffer address.
     let mut drawn: Vec<(usize, Option<Roi>)> = Vec::new();
@@ -334,13 +335,9 @@ fn render_loop(
         let Ok(mut buffer) = free.recv() else { break };
         if let Some(p) = &pacer {
             let present = Duration::from_nanos(p.present_ns.load(Ordering::Relaxed));
-            // The slot this frame will be shown in: the one after the
-            // previous frame's, which may not have been presented yet.
-            let target = match (p.next_slot(), last_target) {
-                (Some(next), Some(last)) => Some(next.max(last + period)),
-                (next, _) => next,
-            };
-            last_target = target;
+            // The slot this frame will be shown in, counted from the next
+            // free slot past the frames still queued before it.
+            let target = p.slot_of(frame, period);
             if let (Some(slot), Some(reserve)) = (target, budget.reserve(present)) {
                 if let Some(start) = slot.checked_sub(reserve) {
                     while !stop.load(Ordering::Relaxed) {
@@ -547,8 +544,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     let render_dropped = dropped.clone();
     let pacer = config.timing.late_latch.then(|| {
         Arc::new(Pacer {
-            base: run_start,
-            next_slot_ns: 0.into(),
+            next: std::sync::Mutex::new(None),
             present_ns: 0.into(),
         })
     });
@@ -676,7 +672,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
                 took.max(old - old / BUDGET_WINDOW as u64),
                 Ordering::Relaxed,
             );
-            p.set_next_slot(next);
+            p.set_next(next, job.frame + 1);
         }
         // The render thread may already have finished (frame limit, end of
         // the trajectory) with its last frame still queued in `ready_rx`:
