@@ -594,17 +594,38 @@ impl PixelRays {
             && (frame.body.albedo_map.is_none() || frame.body.reflectance.is_albedo_quadratic())
     }
 
+    /// μ, the cosine of the emission angle at `s`.
+    #[inline]
+    fn mu(s: &Surface) -> f64 {
+        -s.p.dot(s.n_cam) / s.p.length()
+    }
+
+    /// Distance [px] from `s` to the limb on the image (sin e = 1 − d/R).
+    #[inline]
+    fn to_limb(&self, s: &Surface) -> f64 {
+        let mu = Self::mu(s);
+        self.radius_px * (1.0 - (1.0 - mu * mu).max(0.0).sqrt())
+    }
+
+    /// Whether one point per pixel is enough at `s`: the midpoint rule's
+    /// estimated relative error 1/(24 μ³ μ0 R²) is within
+    /// [`MIDPOINT_TOLERANCE`].
+    #[inline]
+    fn midpoint_suffices(&self, s: &Surface) -> bool {
+        let mu = Self::mu(s);
+        let mu0 = s.n_local.x.max(1e-6);
+        let r2 = self.radius_px * self.radius_px;
+        24.0 * mu * mu * mu * mu0 * r2 * MIDPOINT_TOLERANCE >= 1.0
+    }
+
     /// The lattice factors at pixel position (u, v), or None where a pixel
     /// may not interpolate them (see [`Lattice`]).
     fn node(&self, frame: &Frame, u: f64, v: f64, step: usize) -> Option<Factors> {
         let s = self.surface(u, v)?;
-        let mu = -s.p.dot(s.n_cam) / s.p.length();
         let mu0 = s.n_local.x;
-        let r2 = self.radius_px * self.radius_px;
-        let to_limb = self.radius_px * (1.0 - (1.0 - mu * mu).max(0.0).sqrt());
         if !(mu0 > frame.lune.k_sun)
-            || 24.0 * mu * mu * mu * mu0 * r2 * MIDPOINT_TOLERANCE < 1.0
-            || to_limb < NODE_LIMB_STEPS * step as f64
+            || !self.midpoint_suffices(&s)
+            || self.to_limb(&s) < NODE_LIMB_STEPS * step as f64
         {
             return None;
         }
@@ -645,15 +666,11 @@ impl PixelRays {
             None => frame.albedo,
             Some(map) => self.footprint(map, &s).mean(map, frame.texture_samples),
         };
-        let mu = -s.p.dot(s.n_cam) / s.p.length();
-        // Distance to the limb [px] (sin e = 1 − d/R on the image).
-        let to_limb = self.radius_px * (1.0 - (1.0 - mu * mu).max(0.0).sqrt());
         let midpoint = self.flux_at(frame, &s, albedo);
-        let mu0 = s.n_local.x.max(1e-6);
-        let r2 = self.radius_px * self.radius_px;
-        if 24.0 * mu * mu * mu * mu0 * r2 * MIDPOINT_TOLERANCE >= 1.0 {
+        if self.midpoint_suffices(&s) {
             return midpoint;
         }
+        let to_limb = self.to_limb(&s);
         let gauss = |rule: &[(f64, f64)]| {
             let mut sum = 0.0;
             for &(du, wu) in rule {
