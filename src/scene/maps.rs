@@ -41,7 +41,7 @@ pub struct Stretched<'a> {
 
 impl Stretched<'_> {
     /// Mean over the footprint centred at continuous texel coordinates.
-    #[inline]
+    #[inline(always)]
     pub fn sample(&self, x: f64, y: f64) -> f64 {
         let a = self
             .map
@@ -222,7 +222,7 @@ impl EquirectMap {
 
     /// Bilinear sample at continuous texel coordinates (integer = texel
     /// centre); wraps in x, clamps in y.
-    #[inline]
+    #[inline(always)]
     pub fn sample_texel(&self, x: f64, y: f64) -> f64 {
         bilinear(&self.data, self.width, self.height, x, y)
     }
@@ -264,7 +264,7 @@ impl EquirectMap {
     }
 
     /// Bilinear sample of level `level` at level-0 texel coordinates.
-    #[inline]
+    #[inline(always)]
     fn sample_level(&self, level: &[f32], shift: usize, x: f64, y: f64) -> f64 {
         // 2^-shift is exact: the same value as dividing by 2^shift.
         let x = (x + 0.5) * f64::from_bits((1023 - shift as u64) << 52) - 0.5;
