@@ -130,7 +130,8 @@ impl FrameIdCode {
     /// On/off values of the middle-row cells for `id` (quiet zone excluded).
     pub fn cells(&self, id: u64) -> Vec<bool> {
         let v = id & self.mask();
-        let mut c = vec![true, false];
+        let mut c = Vec::with_capacity(self.bits as usize + 5);
+        c.extend([true, false]);
         let mut ones = 0;
         for i in (0..self.bits).rev() {
             let b = (v >> i) & 1 == 1;

@@ -182,27 +182,31 @@ impl InteriorMask {
             .enumerate()
             .skip(roi.y0)
             .take(roi.height())
-            .map_init(Vec::new, |columns, (j, row)| {
+            .map(|(j, row)| {
                 let mask = &interior[(j - roi.y0) * w..(j - roi.y0 + 1) * w];
                 if !mask.iter().any(|&m| m) {
                     return 0.0;
                 }
-                if let Some(l) = lattice {
-                    l.columns_at_row(j - roi.y0, columns);
-                }
-                let mut sum = 0.0;
-                for (ii, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
-                    let i = roi.x0 + ii;
-                    let interpolated =
-                        lattice.and_then(|l| l.factors_at(columns, ii).map(|q| (l, q)));
-                    let f = match interpolated {
-                        Some((l, q)) => l.pixel_flux(frame, q),
-                        None => rays.pixel_flux(frame, i, j),
-                    };
-                    row[i] = f as f32;
-                    sum += f;
-                }
-                sum
+                // Per-thread scratch, kept between frames: no allocation
+                // in the frame loop once warm.
+                COLUMNS.with_borrow_mut(|columns| {
+                    if let Some(l) = lattice {
+                        l.columns_at_row(j - roi.y0, columns);
+                    }
+                    let mut sum = 0.0;
+                    for (ii, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+                        let i = roi.x0 + ii;
+                        let interpolated =
+                            lattice.and_then(|l| l.factors_at(columns, ii).map(|q| (l, q)));
+                        let f = match interpolated {
+                            Some((l, q)) => l.pixel_flux(frame, q),
+                            None => rays.pixel_flux(frame, i, j),
+                        };
+                        row[i] = f as f32;
+                        sum += f;
+                    }
+                    sum
+                })
             })
             .sum()
     }
@@ -235,6 +239,12 @@ struct Lattice {
 
 /// D, I, and the footprint: texel x, y and axes a1, a2.
 type Factors = [f64; 8];
+
+thread_local! {
+    /// A row's lattice columns ([`Lattice::columns_at_row`]).
+    static COLUMNS: std::cell::RefCell<Vec<Option<Factors>>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+}
 
 /// Nodes where |cos latitude| is below this are not interpolated: the
 /// texel coordinates' derivatives grow as 1/cos latitude.
