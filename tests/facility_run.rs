@@ -316,6 +316,20 @@ fn spawn_run(plan: RunPlan, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Ru
     })
 }
 
+/// Replays the rig's whole trajectory on the simulated backends.
+fn replay(rig: &Rig) -> (Summary, SimDisplay, SimSync) {
+    let mut display = SimDisplay::keep_all(W, H);
+    let mut sync = SimSync::new();
+    let summary = driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap();
+    (summary, display, sync)
+}
+
 /// Runs the driver in closed loop on a free loopback port, accepting
 /// `client` as the only sender; returns the port and the run.
 fn spawn_udp_run(
@@ -340,15 +354,7 @@ fn spawn_udp_run(
 #[test]
 fn sim_end_to_end_replay() {
     let rig = Rig::new(Facility::default(), 5);
-    let mut display = SimDisplay::keep_all(W, H);
-    let mut sync = SimSync::new();
-    let summary = driver::run(
-        rig.plan(StateSource::Replay(rig.trajectory()), None),
-        &mut display,
-        &mut sync,
-        no_stop(),
-    )
-    .unwrap();
+    let (summary, display, sync) = replay(&rig);
 
     // Frames: five, each carrying its id and showing the body.
     assert_eq!(display.presented(), 5);
@@ -408,15 +414,7 @@ fn frames_are_paced_on_slots_of_several_refreshes() {
         },
         6,
     );
-    let mut display = SimDisplay::keep_all(W, H);
-    let mut sync = SimSync::new();
-    let summary = driver::run(
-        rig.plan(StateSource::Replay(rig.trajectory()), None),
-        &mut display,
-        &mut sync,
-        no_stop(),
-    )
-    .unwrap();
+    let (summary, _, _) = replay(&rig);
     assert_eq!(summary.frames, 6);
     let refresh = 1.0 / 60.0;
     let slot = 3.0 * refresh;
@@ -457,15 +455,7 @@ fn late_latching_shows_a_state_younger_than_one_slot() {
         },
         10,
     );
-    let mut display = SimDisplay::keep_all(W, H);
-    let mut sync = SimSync::new();
-    driver::run(
-        rig.plan(StateSource::Replay(rig.trajectory()), None),
-        &mut display,
-        &mut sync,
-        no_stop(),
-    )
-    .unwrap();
+    replay(&rig);
     let slot = 6.0 / 60.0;
     // The first frames start before the pacing is known.
     let mut latencies: Vec<f64> = rig.records()[3..]
@@ -507,15 +497,7 @@ fn expected_screen_radiance(rig: &Rig) -> Vec<f64> {
 #[test]
 fn drive_levels_invert_the_lut() {
     let rig = Rig::new(Facility::default(), 1);
-    let mut display = SimDisplay::keep_all(W, H);
-    let mut sync = SimSync::new();
-    driver::run(
-        rig.plan(StateSource::Replay(rig.trajectory()), None),
-        &mut display,
-        &mut sync,
-        no_stop(),
-    )
-    .unwrap();
+    let (_, display, _) = replay(&rig);
     let frame = &display.last().unwrap().pixels;
     let target = expected_screen_radiance(&rig);
     let peak = target.iter().cloned().fold(0.0, f64::max);
