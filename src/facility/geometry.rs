@@ -171,13 +171,7 @@ impl GeometryCalibration {
     ) -> Result<GeometryCalibration> {
         let path = path.as_ref();
         let err = |line: usize, msg: String| Error::parse(path, format!("line {line}: {msg}"));
-        let text = std::str::from_utf8(bytes)
-            .map_err(|e| Error::parse(path, format!("not UTF-8 text: {e}")))?;
-        let mut rows = text
-            .lines()
-            .enumerate()
-            .map(|(i, l)| (i + 1, l.trim()))
-            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+        let mut rows = super::lut::csv_lines(path, bytes)?;
         let (hl, header) = rows.next().ok_or_else(|| {
             Error::parse(
                 path,

@@ -163,14 +163,8 @@ impl DisplayLut {
     pub fn from_csv_bytes(bytes: &[u8], path: impl AsRef<Path>, bits: u32) -> Result<DisplayLut> {
         let path = path.as_ref();
         let err = |line: usize, msg: String| Error::parse(path, format!("line {line}: {msg}"));
-        let text = std::str::from_utf8(bytes)
-            .map_err(|e| Error::parse(path, format!("not UTF-8 text: {e}")))?;
         let levels = levels_for_bits(bits)?;
-        let mut rows = text
-            .lines()
-            .enumerate()
-            .map(|(i, l)| (i + 1, l.trim()))
-            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+        let mut rows = csv_lines(path, bytes)?;
         let (hl, header) = rows.next().ok_or_else(|| {
             Error::parse(path, format!("empty file: expected header `{LUT_HEADER}`"))
         })?;
@@ -581,6 +575,22 @@ impl FlatField {
     pub fn sha256(&self) -> &str {
         &self.sha256
     }
+}
+
+/// The numbered (from 1), trimmed lines of a calibration CSV file's bytes,
+/// without blank lines and `#` comments; an error naming the file if it is
+/// not UTF-8 text.
+pub(crate) fn csv_lines<'a>(
+    path: &Path,
+    bytes: &'a [u8],
+) -> Result<impl Iterator<Item = (usize, &'a str)>> {
+    let text = std::str::from_utf8(bytes)
+        .map_err(|e| Error::parse(path, format!("not UTF-8 text: {e}")))?;
+    Ok(text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#')))
 }
 
 #[cfg(test)]

@@ -402,35 +402,34 @@ fn fill_interval(row: &mut [bool], ok: impl Fn(usize) -> bool) {
         last = i;
     }
     // Leftmost true in (first − step, first]: ok is monotone there.
-    let (mut lo, mut hi) = (first.saturating_sub(SCAN_STEP), first);
-    if lo == hi || ok(lo) {
-        hi = lo;
+    let lo = first.saturating_sub(SCAN_STEP);
+    let start = if lo == first || ok(lo) {
+        lo
     } else {
-        while hi - lo > 1 {
-            let mid = (lo + hi) / 2;
-            if ok(mid) {
-                hi = mid;
-            } else {
-                lo = mid;
-            }
-        }
-    }
-    let start = hi;
+        first_true(lo, first, &ok)
+    };
     // Rightmost true in [last, last + step).
-    let (mut lo, mut hi) = (last, (last + SCAN_STEP).min(n - 1));
-    if ok(hi) {
-        lo = hi;
+    let hi = (last + SCAN_STEP).min(n - 1);
+    let end = if ok(hi) {
+        hi
     } else {
-        while hi - lo > 1 {
-            let mid = (lo + hi) / 2;
-            if ok(mid) {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
+        first_true(last, hi, |i| !ok(i)) - 1
+    };
+    row[start..=end].fill(true);
+}
+
+/// The smallest i in (lo, hi] with `pred(i)`, by bisection, where `pred`
+/// is false at `lo`, true at `hi` and monotone between.
+fn first_true(mut lo: usize, mut hi: usize, pred: impl Fn(usize) -> bool) -> usize {
+    while hi - lo > 1 {
+        let mid = (lo + hi) / 2;
+        if pred(mid) {
+            hi = mid;
+        } else {
+            lo = mid;
         }
     }
-    row[start..=lo].fill(true);
+    hi
 }
 
 /// Rays of the pixel grid against the body sphere, in the camera frame.
