@@ -55,6 +55,8 @@ struct BenchRow {
     node_spacing: usize,
     interior_pixels: usize,
     caps: u64,
+    /// Caps integrated: laid out and not wholly on interior pixels.
+    caps_integrated: u64,
     median_ms: f64,
     p90_ms: f64,
     flux_error: f64,
@@ -156,8 +158,8 @@ pub fn bench(
         pin.height,
         base.body.reflectance.name()
     );
-    println!("| phase [deg] | interior | caps/px | map samples | node spacing | caps | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| phase [deg] | interior | caps/px | map samples | node spacing | caps | integrated | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for &phase in phases {
         let mut scene = base.clone();
         at_phase(&mut scene, phase);
@@ -187,6 +189,7 @@ pub fn bench(
             let mut times = Vec::with_capacity(repeats);
             let mut stages: [Vec<f64>; 4] = Default::default();
             let mut caps = 0;
+            let mut caps_integrated = 0;
             let mut interior_pixels = 0;
             for _ in 0..repeats.max(1) {
                 let t = Instant::now();
@@ -200,6 +203,7 @@ pub fn bench(
                     v.push(x * 1e3);
                 }
                 caps = stats.caps;
+                caps_integrated = stats.caps_integrated;
                 interior_pixels = stats.interior_pixels;
             }
             times.sort_by(f64::total_cmp);
@@ -225,6 +229,7 @@ pub fn bench(
                 node_spacing: spacing,
                 interior_pixels,
                 caps,
+                caps_integrated,
                 median_ms: percentile(&times, 0.5),
                 p90_ms: percentile(&times, 0.9),
                 flux_error: (total - ref_total).abs() / ref_total,
@@ -235,13 +240,14 @@ pub fn bench(
             };
             let [lay, mask, cap, int] = stage_median_ms;
             println!(
-                "| {:.0} | {:?} | {} | {}×{} | {spacing} | {} | {} | {:.2} | {:.2} | {lay:.2} / {mask:.2} / {cap:.2} / {int:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
+                "| {:.0} | {:?} | {} | {}×{} | {spacing} | {} | {} | {} | {:.2} | {:.2} | {lay:.2} / {mask:.2} / {cap:.2} / {int:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
                 row.phase_deg,
                 row.interior,
                 row.caps_per_pixel,
                 samples,
                 samples,
                 row.caps,
+                row.caps_integrated,
                 row.interior_pixels,
                 row.median_ms,
                 row.p90_ms,

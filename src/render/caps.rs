@@ -223,6 +223,33 @@ impl Frame<'_> {
         lo + s * (hi - lo).max(0.0)
     }
 
+    /// The fewest caps along t and s of a cell: [`Frame::min_caps`] across
+    /// the whole t range, and across the lune's widest φ arc (the equator
+    /// row, sin θ = 1) pro rata of the arc the cell's rows span on the
+    /// sphere. The rows near the lune's tips are short circles (sin θ → 0):
+    /// a minimum per unit s gave them as many caps as the equator's, and
+    /// hundreds of caps landed in the pixel holding a tip.
+    fn min_caps_of(&self, cell: &Cell) -> (f64, f64) {
+        let arc_of = |st: f64| {
+            let (lo, hi) = self.lune.phi_range(st);
+            st * (hi - lo).max(0.0)
+        };
+        let widest = arc_of(1.0);
+        // The cell's widest row: at its edges or middle (the φ arc is
+        // smooth in θ, so three rows bound it closely).
+        let arc = [cell.t0, 0.5 * (cell.t0 + cell.t1), cell.t1]
+            .iter()
+            .map(|&t| arc_of(self.theta(t).sin()))
+            .fold(0.0, f64::max)
+            * (cell.s1 - cell.s0);
+        let min_s = if widest > 0.0 {
+            (self.min_caps * arc / widest).ceil()
+        } else {
+            1.0
+        };
+        ((self.min_caps * (cell.t1 - cell.t0)).ceil(), min_s)
+    }
+
     /// Visit a cell: drop it, cut it, or store it as a leaf. Returns the
     /// pixel bounds the leaf may touch.
     pub fn visit(&self, cell: Cell, stack: &mut Vec<Cell>, leaves: &mut Vec<Leaf>) -> Option<Rect> {
@@ -290,8 +317,7 @@ impl Frame<'_> {
             split(stack);
             return None;
         }
-        let min_t = (self.min_caps * (cell.t1 - cell.t0)).ceil();
-        let min_s = (self.min_caps * (cell.s1 - cell.s0)).ceil();
+        let (min_t, min_s) = self.min_caps_of(&cell);
         let n_t = (along_t * self.density)
             .ceil()
             .max(min_t)
@@ -438,6 +464,7 @@ impl Frame<'_> {
                 if !(pf > 0.0) {
                     continue;
                 }
+                sink.integrated += 1;
                 total += pf;
                 if quad.iter().all(|p| p.0.is_finite()) {
                     if texture.k > 1 {
@@ -871,6 +898,8 @@ pub struct Sink<'a> {
     pub interior: Option<&'a InteriorMask>,
     /// PF dropped on interior pixels since the last take.
     pub skipped: f64,
+    /// Caps integrated (not covered by interior pixels).
+    pub integrated: u64,
 }
 
 impl Sink<'_> {
@@ -1020,6 +1049,7 @@ mod tests {
             roi: *roi,
             interior: None,
             skipped: 0.0,
+            integrated: 0,
         };
         grid_quad(&mut sink, quad, value);
     }

@@ -137,8 +137,11 @@ pub enum GeometryMode {
 /// What one call of [`Renderer::render_flux`] did.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct RenderStats {
-    /// Caps integrated (inside or near the field of view).
+    /// Caps laid out inside or near the field of view.
     pub caps: u64,
+    /// Caps whose PF was integrated and gridded: those not lying wholly
+    /// on interior pixels (with a positive PF).
+    pub caps_integrated: u64,
     /// Leaf cells.
     pub cells: usize,
     /// Σ PF_i of the integrated caps, per unit solar irradiance at 1 au:
@@ -340,7 +343,7 @@ impl Renderer {
 
         let area = roi.width() * roi.height();
         let leaves = &self.leaves;
-        stats.total_flux = self
+        (stats.total_flux, stats.caps_integrated) = self
             .workers
             .par_iter_mut()
             .zip(self.chunks.par_iter())
@@ -353,13 +356,15 @@ impl Renderer {
                     roi,
                     interior: mask,
                     skipped: 0.0,
+                    integrated: 0,
                 };
-                leaves[range.clone()]
+                let flux = leaves[range.clone()]
                     .iter()
                     .map(|leaf| frame.grid_leaf(leaf, &mut sink, rows))
-                    .sum::<f64>()
+                    .sum::<f64>();
+                (flux, sink.integrated)
             })
-            .sum();
+            .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
 
         // Reduce the workers' buffers into the image.
         let used = self.chunks.len();
