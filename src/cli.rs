@@ -362,7 +362,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
         .or_else(|| config.sync.port.as_ref().map(|p| p.display().to_string()))
         .unwrap_or_else(|| "sim".into());
     let mut sync: Box<dyn SyncPort> = match serial_choice.as_str() {
-        "sim" => Box::new(SimSync::new()),
+        // The last exchanges only: a long run must not grow.
+        "sim" => Box::new(SimSync::with_history(64)),
         "none" => Box::new(NoSync),
         path => Box::new(SerialPortSync::open(SerialOptions::new(
             path,

@@ -562,11 +562,14 @@ pub enum Exchange {
 }
 
 /// Simulated sync device: acknowledges every line with `ACK <line>`
-/// (terminator stripped), records the exchange, and injects faults.
+/// (terminator stripped), records the exchange (all of it, or the last
+/// entries only for long runs), and injects faults.
 #[derive(Debug, Clone, Default)]
 pub struct SimSync {
-    /// Everything that happened, in order.
-    pub exchange: Vec<Exchange>,
+    /// What happened, in order: everything, or the last `history` entries.
+    pub exchange: VecDeque<Exchange>,
+    /// Most entries kept in `exchange` (None: all).
+    pub history: Option<usize>,
     /// Send calls so far (index of the next send).
     pub sends: u64,
     /// Drop the ack of every send whose index is in here.
@@ -590,7 +593,28 @@ impl SimSync {
         }
     }
 
-    /// Lines delivered to the device.
+    /// A simulator that keeps only the last `entries` of the exchange, so
+    /// its memory stays flat over a run of any length.
+    pub fn with_history(entries: usize) -> SimSync {
+        SimSync {
+            history: Some(entries),
+            ..SimSync::new()
+        }
+    }
+
+    fn record(&mut self, e: Exchange) {
+        if let Some(limit) = self.history {
+            if self.exchange.len() >= limit {
+                self.exchange.pop_front();
+            }
+            if limit == 0 {
+                return;
+            }
+        }
+        self.exchange.push_back(e);
+    }
+
+    /// Lines delivered to the device (of those kept).
     pub fn sent_lines(&self) -> Vec<&str> {
         self.exchange
             .iter()
@@ -613,7 +637,7 @@ impl SyncPort for SimSync {
         self.sends += 1;
         if self.gone_now(idx) {
             self.stats.dropped_gone += 1;
-            self.exchange.push(Exchange::Refused(line.to_string()));
+            self.record(Exchange::Refused(line.to_string()));
             return Ok(SendOutcome::DeviceGone);
         }
         if idx > 0 && self.gone_now(idx - 1) {
@@ -621,14 +645,14 @@ impl SyncPort for SimSync {
         }
         self.stats.queued += 1;
         self.stats.written += 1;
-        self.exchange.push(Exchange::Sent(line.to_string()));
+        self.record(Exchange::Sent(line.to_string()));
         if self.ack {
             let ack = format!("ACK {}", line.trim_end_matches(['\r', '\n']));
             if self.drop_all_acks || self.drop_acks.contains(&idx) {
-                self.exchange.push(Exchange::AckDropped(ack));
+                self.record(Exchange::AckDropped(ack));
             } else {
                 self.stats.acks += 1;
-                self.exchange.push(Exchange::Ack(ack.clone()));
+                self.record(Exchange::Ack(ack.clone()));
                 self.pending.push_back(ack);
             }
         }
@@ -670,6 +694,32 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("{nope}"));
+    }
+
+    /// A bounded history keeps the last entries and forgets the rest,
+    /// while the counters still cover every send.
+    #[test]
+    fn sim_history_keeps_only_the_last_entries() {
+        let mut s = SimSync::with_history(3);
+        for i in 0..1000 {
+            s.send(&format!("F {i}\n")).unwrap();
+            assert_eq!(
+                s.wait_ack(Duration::ZERO).unwrap(),
+                Some(format!("ACK F {i}"))
+            );
+        }
+        assert_eq!(
+            s.exchange.iter().cloned().collect::<Vec<_>>(),
+            vec![
+                Exchange::Ack("ACK F 998".into()),
+                Exchange::Sent("F 999\n".into()),
+                Exchange::Ack("ACK F 999".into()),
+            ]
+        );
+        assert_eq!((s.stats().written, s.stats().acks), (1000, 1000));
+        let mut silent = SimSync::with_history(0);
+        silent.send("F 0\n").unwrap();
+        assert!(silent.exchange.is_empty() && silent.stats().written == 1);
     }
 
     #[test]
