@@ -27,3 +27,17 @@ pub mod scene;
 pub mod validate;
 
 pub use error::{Error, Result};
+
+/// `n` copies of `value` with every page resident: written once here, so
+/// a real-time loop never takes a first-touch page fault in it (a
+/// zero-filled allocation is mapped lazily, page by page, as it is first
+/// written, which made the facility's memory creep while the body drifted
+/// over untouched parts of the screen).
+pub fn resident_vec<T: Copy>(value: T, n: usize) -> Vec<T> {
+    let mut v = Vec::with_capacity(n);
+    // Opaque to the optimiser: the writes below cannot become a lazily
+    // mapped zeroed allocation.
+    std::hint::black_box(&mut v);
+    v.resize(n, value);
+    v
+}

@@ -537,7 +537,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     let (ready_tx, ready_rx) = sync_channel::<Job>(1);
     let black = converter.black_pixel();
     for _ in 0..2 {
-        free_tx.send(vec![black; w * h]).ok();
+        free_tx.send(crate::resident_vec(black, w * h)).ok();
     }
     let dropped = Arc::new(std::sync::atomic::AtomicU64::new(0));
     let render_stop = stop.clone();

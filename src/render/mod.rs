@@ -195,7 +195,7 @@ impl Renderer {
         let threads = rayon::current_num_threads().max(1);
         Self {
             camera,
-            flux: vec![0.0; n],
+            flux: crate::resident_vec(0.0, n),
             dirty: Rect::default(),
             workers: (0..threads)
                 .map(|_| (Vec::new(), [Vec::new(), Vec::new()]))
