@@ -204,3 +204,35 @@ fn node_lattice_matches_direct_evaluation() {
         assert!(worst < 1e-3, "{name}, map {with_map}: max {worst:e}");
     }
 }
+
+/// The lune's caps only integrate what the interior pixels leave: the edge
+/// band, one to two pixels wide. At one cap per pixel that is a few caps
+/// per edge pixel; a minimum cap count applied per row regardless of the
+/// row's length once put hundreds into each pixel holding a tip of the
+/// lune (9–10 caps per edge pixel overall, against under 6 now).
+#[test]
+fn edge_caps_stay_near_one_per_pixel_area() {
+    for alpha in [30.0, 105.0] {
+        let scene = Setup::new(
+            "{ model = \"oren_nayar\", albedo = 0.15, roughness = 0.3 }",
+            alpha,
+            60.0,
+            400.0,
+        )
+        .scene();
+        let mut renderer = optistim::render::Renderer::new(scene.camera.pinhole.clone());
+        let stats = renderer.render_flux(&scene.body, &scene.state, &scene.render, None);
+        let lit = renderer.flux().iter().filter(|&&f| f > 0.0).count();
+        let edge = lit - stats.interior_pixels;
+        let per_edge_pixel = stats.caps_integrated as f64 / edge as f64;
+        eprintln!(
+            "α {alpha}°: {} caps integrated for {edge} edge pixels ({per_edge_pixel:.1} each)",
+            stats.caps_integrated
+        );
+        assert!(edge > 1000 && stats.interior_pixels > 10 * edge);
+        assert!(
+            per_edge_pixel < 7.5,
+            "α {alpha}°: {per_edge_pixel:.1} caps per edge pixel"
+        );
+    }
+}
