@@ -24,43 +24,10 @@ use optistim::facility::serial::SimSync;
 use optistim::facility::trajectory::Trajectory;
 use optistim::scene::Scene;
 
-use common::{pixel_solid_angle, sha256_hex, test_lut_csv, AU};
+use common::{facility_scene_toml, pixel_solid_angle, sha256_hex, test_lut_csv, AU};
 
 const PITCH: f64 = 2.768e-4;
 const MOON_R: f64 = 1737.4e3;
-
-fn scene_toml(camera: DVec3, sun: DVec3) -> String {
-    format!(
-        r#"
-[camera]
-resolution = [64, 64]
-pixel_pitch = 10e-6
-fov_deg = 6.0
-f_number = 2.5
-exposure = 2.0e-5
-full_well = 1.0e5
-bits = 12
-band = [450e-9, 820e-9]
-
-[sun]
-spectrum = "blackbody"
-temperature = 5772.0
-irradiance_1au = 1361.0
-
-[body]
-radius = {MOON_R:e}
-reflectance = {{ model = "lambert", albedo = 0.15 }}
-
-[state]
-body_position = [0.0, 0.0, 0.0]
-body_attitude = [1.0, 0.0, 0.0, 0.0]
-camera_position = [{:e}, {:e}, {:e}]
-camera_attitude = [1.0, 0.0, 0.0, 0.0]
-sun_position = [{:e}, {:e}, {:e}]
-"#,
-        camera.x, camera.y, camera.z, sun.x, sun.y, sun.z
-    )
-}
 
 fn facility_toml(
     w: usize,
@@ -213,7 +180,7 @@ fn pinhole_geometry_file_reproduces_the_alignment_path() {
     let n = DVec3::new(0.0065, -0.0037, 1.0).normalize();
     let camera = -n * 4.7e8;
     let sun = DQuat::from_rotation_y(0.5) * (camera.normalize() * AU);
-    let scene = scene_toml(camera, sun);
+    let scene = facility_scene_toml(camera, sun);
     let aligned = Rig::new(
         &scene,
         &facility_toml(
@@ -323,7 +290,7 @@ fn radial_distortion_puts_the_disk_where_the_model_predicts() {
     let axis = n.cross(DVec3::Y).normalize();
     let sun = DQuat::from_axis_angle(axis, 3f64.to_radians()) * (camera.normalize() * AU);
     let rig = Rig::new(
-        &scene_toml(camera, sun),
+        &facility_scene_toml(camera, sun),
         &facility_toml(w, h, f * PITCH, "geometry = \"geometry.csv\"", ""),
         Some(&geometry_csv(w, h, 16, &model)),
     );
@@ -559,7 +526,7 @@ fn bad_geometry_file_stops_the_run_before_anything_is_shown() {
         })
         .collect();
     let rig = Rig::new(
-        &scene_toml(DVec3::new(0.0, 0.0, -4.7e8), DVec3::new(0.0, 0.0, -AU)),
+        &facility_scene_toml(DVec3::new(0.0, 0.0, -4.7e8), DVec3::new(0.0, 0.0, -AU)),
         &facility_toml(w, h, 3.0, "geometry = \"geometry.csv\"", ""),
         Some(&bad),
     );
@@ -636,7 +603,7 @@ fn resampled_region_is_bounded_by_the_body_on_the_bundled_example() {
     let rho = 100.0 / f;
     let camera = -n * (MOON_R / rho);
     let sun = DQuat::from_rotation_y(0.1) * (camera.normalize() * AU);
-    let text = scene_toml(camera, sun);
+    let text = facility_scene_toml(camera, sun);
     let scene = Scene::from_toml(&text, Path::new("scene.toml")).unwrap();
 
     let t0 = Instant::now();
@@ -710,7 +677,7 @@ fn run_with_geometry_logs_its_sha256_and_shows_the_body() {
         pinhole_model(w, h, focal / PITCH, [5.0, -3.0], 0.02),
     );
     let rig = Rig::new(
-        &scene_toml(
+        &facility_scene_toml(
             DVec3::new(0.0, 0.0, -4.7e8),
             DVec3::new(7.48e10, 0.0, -1.29557e11),
         ),

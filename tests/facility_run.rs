@@ -16,6 +16,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use glam::DVec3;
 use tempfile::TempDir;
 
 use optistim::facility::config::FacilityConfig;
@@ -43,34 +44,6 @@ const RANGE: f64 = 4.7e8;
 const SUN: [f64; 3] = [7.48e10, 0.0, -1.29557e11];
 
 use common::{sha256_hex, test_lut_csv, test_lut_radiance};
-
-const SCENE: &str = r#"
-[camera]
-resolution = [64, 64]
-pixel_pitch = 10e-6
-fov_deg = 6.0
-f_number = 2.5
-exposure = 2.0e-5
-full_well = 1.0e5
-bits = 12
-band = [450e-9, 820e-9]
-
-[sun]
-spectrum = "blackbody"
-temperature = 5772.0
-irradiance_1au = 1361.0
-
-[body]
-radius = 1737.4e3
-reflectance = { model = "lambert", albedo = 0.15 }
-
-[state]
-body_position = [0.0, 0.0, 0.0]
-body_attitude = [1.0, 0.0, 0.0, 0.0]
-camera_position = [0.0, 0.0, -4.7e8]
-camera_attitude = [1.0, 0.0, 0.0, 0.0]
-sun_position = [7.48e10, 0.0, -1.29557e11]
-"#;
 
 /// Settings of the test facility file that vary between tests.
 struct Facility {
@@ -159,7 +132,11 @@ impl Rig {
     fn new(f: Facility, states: usize) -> Rig {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path();
-        std::fs::write(p.join("scene.toml"), SCENE).unwrap();
+        std::fs::write(
+            p.join("scene.toml"),
+            common::facility_scene_toml(DVec3::new(0.0, 0.0, -RANGE), DVec3::from_array(SUN)),
+        )
+        .unwrap();
         std::fs::write(p.join("lut.csv"), test_lut_csv()).unwrap();
         std::fs::write(p.join("trajectory.csv"), trajectory_csv(states)).unwrap();
         std::fs::write(p.join("facility.toml"), f.toml()).unwrap();

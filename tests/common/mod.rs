@@ -212,6 +212,43 @@ pub const IMG2: &str = concat!(
 /// The facility tests' display: drive level l (0–255) gives
 /// `TEST_LUT_MAX` (l/255)^2.2 + `TEST_LUT_BLACK` W m⁻² sr⁻¹, written here
 /// independently of the library's LUT code.
+/// The flight scene of the facility tests: a Lambert Moon (ρ 0.15) at the
+/// origin, body frame = world frame, seen by a 64 px, 6° camera at
+/// `camera` looking along +z, lit from `sun` (positions in m).
+#[allow(dead_code)]
+pub fn facility_scene_toml(camera: DVec3, sun: DVec3) -> String {
+    format!(
+        r#"
+[camera]
+resolution = [64, 64]
+pixel_pitch = 10e-6
+fov_deg = 6.0
+f_number = 2.5
+exposure = 2.0e-5
+full_well = 1.0e5
+bits = 12
+band = [450e-9, 820e-9]
+
+[sun]
+spectrum = "blackbody"
+temperature = 5772.0
+irradiance_1au = 1361.0
+
+[body]
+radius = 1737.4e3
+reflectance = {{ model = "lambert", albedo = 0.15 }}
+
+[state]
+body_position = [0.0, 0.0, 0.0]
+body_attitude = [1.0, 0.0, 0.0, 0.0]
+camera_position = [{:e}, {:e}, {:e}]
+camera_attitude = [1.0, 0.0, 0.0, 0.0]
+sun_position = [{:e}, {:e}, {:e}]
+"#,
+        camera.x, camera.y, camera.z, sun.x, sun.y, sun.z
+    )
+}
+
 pub const TEST_LUT_MAX: f64 = 0.5;
 /// Black level of the test display [W m⁻² sr⁻¹].
 pub const TEST_LUT_BLACK: f64 = 5.0e-4;
