@@ -19,7 +19,7 @@ use optistim::facility::display::SimDisplay;
 use optistim::facility::dither::Roi;
 use optistim::facility::driver::{self, RunPlan, ScreenModel, StateSource};
 use optistim::facility::geometry::{GeometryCalibration, TILE};
-use optistim::facility::log::read_records;
+use optistim::facility::log::{read_records, Summary};
 use optistim::facility::serial::SimSync;
 use optistim::facility::trajectory::Trajectory;
 use optistim::scene::Scene;
@@ -141,6 +141,29 @@ impl Rig {
 
     fn scene(&self) -> Scene {
         Scene::from_file(&self.path("scene.toml")).unwrap()
+    }
+
+    /// Replays `trajectory.csv` (as the facility file names it) on the
+    /// simulated display and serial; the run's result and the display.
+    fn replay(&self) -> (optistim::Result<Summary>, SimDisplay) {
+        let cfg = self.config();
+        let traj = Trajectory::load(cfg.scenario.trajectory.as_ref().unwrap()).unwrap();
+        let (w, h) = cfg.screen_size();
+        let mut display = SimDisplay::keep_all(w, h);
+        let result = driver::run(
+            RunPlan {
+                config: cfg,
+                scene: self.scene(),
+                source: StateSource::Replay(traj),
+                frames: None,
+                log: self.path("frames.jsonl"),
+                summary: self.path("summary.json"),
+            },
+            &mut display,
+            &mut SimSync::new(),
+            Arc::new(AtomicBool::new(false)),
+        );
+        (result, display)
     }
 }
 
@@ -535,25 +558,8 @@ fn bad_geometry_file_stops_the_run_before_anything_is_shown() {
         "t,cam_x,cam_y,cam_z,cam_qw,cam_qx,cam_qy,cam_qz,sun_x,sun_y,sun_z\n0,0,0,-4.7e8,1,0,0,0,1e11,0,-1e11\n",
     )
     .unwrap();
-    let cfg = rig.config();
-    let traj = Trajectory::load(cfg.scenario.trajectory.as_ref().unwrap()).unwrap();
-    let mut display = SimDisplay::keep_all(w, h);
-    let mut sync = SimSync::new();
-    let e = driver::run(
-        RunPlan {
-            config: cfg,
-            scene: rig.scene(),
-            source: StateSource::Replay(traj),
-            frames: None,
-            log: rig.path("frames.jsonl"),
-            summary: rig.path("summary.json"),
-        },
-        &mut display,
-        &mut sync,
-        Arc::new(AtomicBool::new(false)),
-    )
-    .unwrap_err()
-    .to_string();
+    let (result, display) = rig.replay();
+    let e = result.unwrap_err().to_string();
     assert!(
         e.contains("geometry.csv") && e.contains("line") && e.contains("tan_x"),
         "{e}"
@@ -691,24 +697,8 @@ fn run_with_geometry_logs_its_sha256_and_shows_the_body() {
          0.05,0,0,-4.69e8,1,0,0,0,7.48e10,0,-1.29557e11\n",
     )
     .unwrap();
-    let cfg = rig.config();
-    let traj = Trajectory::load(cfg.scenario.trajectory.as_ref().unwrap()).unwrap();
-    let mut display = SimDisplay::keep_all(w, h);
-    let mut sync = SimSync::new();
-    driver::run(
-        RunPlan {
-            config: cfg,
-            scene: rig.scene(),
-            source: StateSource::Replay(traj),
-            frames: None,
-            log: rig.path("frames.jsonl"),
-            summary: rig.path("summary.json"),
-        },
-        &mut display,
-        &mut sync,
-        Arc::new(AtomicBool::new(false)),
-    )
-    .unwrap();
+    let (result, display) = rig.replay();
+    result.unwrap();
     let sha = sha256_hex(geometry.as_bytes());
     let records = read_records(rig.path("frames.jsonl")).unwrap();
     assert_eq!(records.len(), 2);
