@@ -38,9 +38,10 @@ pub struct RenderSettings {
     /// Caps per pixel along each image axis. Omitted: [`DEFAULT_DENSITY`],
     /// chosen from the benchmark's error curve (see BENCHMARKS.md).
     pub caps_per_pixel: Option<f64>,
-    /// Minimum number of caps along each axis of the lit, visible lune,
-    /// whatever the apparent size: keeps the total flux of unresolved bodies
-    /// exact to the flux tolerance.
+    /// Minimum number of caps across the lit, visible lune, whatever the
+    /// apparent size: along θ over its whole range, along φ across its
+    /// widest row (shorter rows pro rata of their arc). Keeps the total flux
+    /// of unresolved bodies exact to the flux tolerance.
     pub min_caps: usize,
     /// `exact` (finite-distance geometry for every cap) or `distant` (the
     /// paper's far-field limit: one view and Sun direction for all caps).
