@@ -374,6 +374,13 @@ fn sim_end_to_end_replay() {
     }
 
     assert_eq!(summary.frames, 5);
+    assert!(
+        summary
+            .preflight_render
+            .is_some_and(|t| t > 0.0 && t < 60.0),
+        "pre-flight render time in the summary: {:?}",
+        summary.preflight_render
+    );
     assert_eq!(summary.dropped_states, 0);
     assert_same_summary(&rig.summary_file(), &summary);
 }

@@ -439,6 +439,31 @@ fn render_loop(
     Ok(())
 }
 
+/// Renders made before the first frame: they build what the renderer makes
+/// on first use (the map's longitude levels, summed-area tables, buffers),
+/// so the first frames are not late for it, and they time the scene.
+const PREFLIGHT_RENDERS: usize = 3;
+
+/// Refreshes per frame that leave a render of `render` a quarter of margin
+/// in its slot (at least 1).
+pub fn refreshes_needed(render: Duration, refresh: Duration) -> u32 {
+    let slots = 1.25 * render.as_secs_f64() / refresh.as_secs_f64();
+    (slots.ceil() as u32).max(1)
+}
+
+/// Median time of [`PREFLIGHT_RENDERS`] renders of `state`.
+fn preflight(model: &mut ScreenModel, scene: &Scene, state: &State) -> Duration {
+    let mut times: Vec<Duration> = (0..PREFLIGHT_RENDERS)
+        .map(|_| {
+            let t = Instant::now();
+            model.render(scene, state);
+            t.elapsed()
+        })
+        .collect();
+    times.sort();
+    times[PREFLIGHT_RENDERS / 2]
+}
+
 /// Run the loop until the frames are done, the display closes or `stop`
 /// is set. Returns the summary (also written to `plan.summary`).
 pub fn run<D: Display, S: SyncPort + ?Sized>(
@@ -503,6 +528,12 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         .unwrap_or(scene.camera.exposure)
         * 1e6)
         .round() as u64;
+    // The pre-flight renders the first state replayed, or the scene's own.
+    let first_state = match &plan.source {
+        StateSource::Replay(t) => t.states.first().map(|s| scene_state(s, &scene.state)),
+        StateSource::Udp { .. } => None,
+    }
+    .unwrap_or(scene.state);
     let (source, frames) = match plan.source {
         StateSource::Replay(t) => {
             let n = t.len() as u64;
@@ -525,13 +556,30 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         "facility scale k (flight radiance × k = screen radiance before τ and flat field)"
     );
 
-    let model = ScreenModel::new(config, &scene, geometry.as_ref());
-    let run_start = Instant::now();
-    let mut log = FrameLog::open(&plan.log, run_start)?;
+    let mut model = ScreenModel::new(config, &scene, geometry.as_ref());
     // A frame's slot is `refreshes_per_frame` refreshes; it must be up by
     // the end of the slot's first refresh.
     let refresh = Duration::from_secs_f64(1.0 / config.screen.refresh_hz);
     let period = refresh * config.timing.refreshes_per_frame;
+    let render_time = preflight(&mut model, &scene, &first_state);
+    let needed = refreshes_needed(render_time, refresh);
+    if needed > config.timing.refreshes_per_frame {
+        tracing::warn!(
+            render_ms = render_time.as_secs_f64() * 1e3,
+            slot_ms = period.as_secs_f64() * 1e3,
+            "the scene renders in about a slot or more: expect missed deadlines; \
+             timing.refreshes_per_frame = {needed} would leave a quarter of margin"
+        );
+    } else {
+        tracing::info!(
+            render_ms = render_time.as_secs_f64() * 1e3,
+            slot_ms = period.as_secs_f64() * 1e3,
+            "pre-flight render"
+        );
+    }
+    let run_start = Instant::now();
+    let mut log = FrameLog::open(&plan.log, run_start)?;
+    log.set_preflight_render(render_time.as_secs_f64());
     let state_timeout = Duration::from_secs_f64(config.timing.state_timeout);
     let (free_tx, free_rx): (Sender<Vec<u32>>, Receiver<Vec<u32>>) = channel();
     let (ready_tx, ready_rx) = sync_channel::<Job>(1);
@@ -690,4 +738,23 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     result?;
     worker_result?;
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refreshes_needed_leaves_a_quarter_of_margin() {
+        let refresh = Duration::from_secs_f64(1.0 / 60.0);
+        let ms = |v: f64| Duration::from_secs_f64(v * 1e-3);
+        // 1.25 × render against whole 16.67 ms refreshes.
+        assert_eq!(refreshes_needed(ms(1.0), refresh), 1);
+        assert_eq!(refreshes_needed(ms(13.0), refresh), 1); // 16.25 ms
+        assert_eq!(refreshes_needed(ms(14.0), refresh), 2); // 17.5 ms
+        assert_eq!(refreshes_needed(ms(30.0), refresh), 3); // 37.5 ms
+        assert_eq!(refreshes_needed(ms(39.0), refresh), 3); // 48.75 ms
+        assert_eq!(refreshes_needed(ms(41.0), refresh), 4);
+        assert_eq!(refreshes_needed(Duration::ZERO, refresh), 1);
+    }
 }

@@ -223,6 +223,10 @@ pub struct Summary {
     pub dropped_states: u64,
     /// State received → presented.
     pub latency_state_to_present: LatencyStats,
+    /// Median render time [s] of the pre-flight renders done before the
+    /// first frame (see `driver::run`); None when none was done.
+    #[serde(default)]
+    pub preflight_render: Option<f64>,
 }
 
 /// Append-only, write-through frame log.
@@ -236,6 +240,7 @@ pub struct FrameLog {
     missed: u64,
     dropped_states: u64,
     latencies: LatencyHistogram,
+    preflight_render: Option<f64>,
 }
 
 impl FrameLog {
@@ -260,6 +265,7 @@ impl FrameLog {
             missed: 0,
             dropped_states: 0,
             latencies: LatencyHistogram::new(),
+            preflight_render: None,
         })
     }
 
@@ -300,6 +306,11 @@ impl FrameLog {
         Ok(())
     }
 
+    /// Records the pre-flight render time [s] for the summary.
+    pub fn set_preflight_render(&mut self, seconds: f64) {
+        self.preflight_render = Some(seconds);
+    }
+
     /// Counts states dropped before rendering.
     pub fn add_dropped_states(&mut self, n: u64) {
         self.dropped_states += n;
@@ -313,6 +324,7 @@ impl FrameLog {
             missed_deadlines: self.missed,
             dropped_states: self.dropped_states,
             latency_state_to_present: self.latencies.stats(),
+            preflight_render: self.preflight_render,
         }
     }
 
