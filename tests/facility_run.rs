@@ -295,7 +295,11 @@ fn spawn_run(plan: RunPlan, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Ru
 
 /// Replays the rig's whole trajectory on the simulated backends.
 fn replay(rig: &Rig) -> (Summary, SimDisplay, SimSync) {
-    let mut display = SimDisplay::keep_all(W, H);
+    replay_on(rig, SimDisplay::keep_all(W, H))
+}
+
+/// [`replay`] on a given simulated display (e.g. one that closes).
+fn replay_on(rig: &Rig, mut display: SimDisplay) -> (Summary, SimDisplay, SimSync) {
     let mut sync = SimSync::new();
     let summary = driver::run(
         rig.plan(StateSource::Replay(rig.trajectory()), None),
@@ -767,15 +771,7 @@ fn state_timeout_shows_the_safe_black_frame() {
 #[test]
 fn display_closed_ends_the_run_cleanly() {
     let rig = Rig::new(Facility::default(), 10);
-    let mut display = SimDisplay::keep_all(W, H).close_after(3);
-    let mut sync = SimSync::new();
-    let summary = driver::run(
-        rig.plan(StateSource::Replay(rig.trajectory()), None),
-        &mut display,
-        &mut sync,
-        no_stop(),
-    )
-    .unwrap();
+    let (summary, display, sync) = replay_on(&rig, SimDisplay::keep_all(W, H).close_after(3));
     assert_eq!(display.presented(), 3);
     assert_eq!(summary.frames, 3);
     let records = rig.records();

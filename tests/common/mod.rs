@@ -12,6 +12,13 @@ use optistim::scene::Scene;
 
 pub const AU: f64 = 149_597_870_700.0;
 
+/// The test scenes' Sun: a 5772 K blackbody giving 1361 W/m² at 1 au.
+const SUN: &str = r#"[sun]
+spectrum = "blackbody"
+temperature = 5772.0
+irradiance_1au = 1361.0
+"#;
+
 /// Scalar-first quaternion of a camera at `pos` looking at `target`.
 pub fn look_at(pos: DVec3, target: DVec3) -> [f64; 4] {
     let z = (target - pos).normalize();
@@ -98,11 +105,7 @@ full_well = 1e30
 bits = 12
 band = [450e-9, 820e-9]
 
-[sun]
-spectrum = "blackbody"
-temperature = 5772.0
-irradiance_1au = 1361.0
-
+{SUN}
 [body]
 radius = {r:e}
 reflectance = {refl}
@@ -229,11 +232,7 @@ full_well = 1.0e5
 bits = 12
 band = [450e-9, 820e-9]
 
-[sun]
-spectrum = "blackbody"
-temperature = 5772.0
-irradiance_1au = 1361.0
-
+{SUN}
 [body]
 radius = 1737.4e3
 reflectance = {{ model = "lambert", albedo = 0.15 }}
