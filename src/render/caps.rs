@@ -737,19 +737,21 @@ impl Footprint {
         let bx = (a1.0.abs() + a2.0.abs()) / kf;
         let by = (a1.1.abs() + a2.1.abs()) / kf;
         let area = (a1.0 * a2.1 - a1.1 * a2.0).abs() / (K * K) as f64;
-        let shrink = if bx * by > 0.0 {
-            (area / (bx * by)).sqrt()
+        // The sample's box (sx, sy): the bounding box (bx, by) shrunk to the
+        // sample's area, compared squared so the common case takes no root.
+        let (sx2, sy2) = if bx * by > 0.0 {
+            (bx * area / by, by * area / bx)
         } else {
-            1.0
+            (bx * bx, by * by)
         };
-        let (sx, sy) = (bx * shrink, by * shrink);
-        if sx <= 1.5 && sy <= 1.5 {
+        const SMALL2: f64 = 1.5 * 1.5;
+        if sx2 <= SMALL2 && sy2 <= SMALL2 {
             self.each::<K>(|x, y| map.sample_texel(x, y), &mut store)
-        } else if sy <= 1.5 {
-            let stretched = map.stretched(sx);
+        } else if sy2 <= SMALL2 {
+            let stretched = map.stretched(sx2.sqrt());
             self.each::<K>(|x, y| stretched.sample(x, y), &mut store)
         } else {
-            let (hx, hy) = (0.5 * (1.0 + sx * sx).sqrt(), 0.5 * (1.0 + sy * sy).sqrt());
+            let (hx, hy) = (0.5 * (1.0 + sx2).sqrt(), 0.5 * (1.0 + sy2).sqrt());
             self.each::<K>(
                 |x, y| {
                     let (la, lo) = map.lat_lon_of(x, y);

@@ -1,0 +1,48 @@
+//! A fixed render workload for profilers.
+//!
+//! `cargo run --release --example render_profile -- SCENE [RENDERS]` renders
+//! the scene's own state RENDERS times (default 20) and prints the median
+//! of each stage. Unlike `optistim bench` it computes no reference, so a
+//! profile (`perf record`, or `valgrind --tool=cachegrind` for counts that
+//! do not depend on the machine's load) sees only the renderer.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use optistim::render::Renderer;
+use optistim::scene::Scene;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() -> anyhow::Result<()> {
+    let mut args = std::env::args().skip(1);
+    let scene_path = PathBuf::from(args.next().unwrap_or_else(|| "configs/moon.toml".into()));
+    let renders: usize = args.next().map_or(Ok(20), |s| s.parse())?;
+    let scene = Scene::from_file(&scene_path)?;
+    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let mut total = Vec::new();
+    let mut stages: [Vec<f64>; 4] = Default::default();
+    for _ in 0..renders.max(1) {
+        let t = Instant::now();
+        let stats = renderer.render_flux(&scene.body, &scene.state, &scene.render, None);
+        total.push(t.elapsed().as_secs_f64() * 1e3);
+        let s = stats.stages;
+        for (v, x) in stages
+            .iter_mut()
+            .zip([s.layout, s.mask, s.caps, s.interior])
+        {
+            v.push(x * 1e3);
+        }
+    }
+    let [layout, mask, caps, interior] = stages.map(median);
+    println!(
+        "{} renders on {} threads: median {:.2} ms (layout {layout:.2} / mask {mask:.2} / caps {caps:.2} / interior {interior:.2} ms)",
+        total.len(),
+        rayon::current_num_threads(),
+        median(total)
+    );
+    Ok(())
+}
