@@ -569,6 +569,118 @@ fn bad_geometry_file_stops_the_run_before_anything_is_shown() {
 }
 
 // ---------------------------------------------------------------------------
+// 3b. Render blocks (`screen.render_block`): each block of b × b screen
+//     pixels shows one radiance and sends the flux integrated over it.
+
+#[test]
+fn render_blocks_send_each_block_the_flux_integrated_over_it() {
+    // 320 × 240 is not a multiple of 3: the last blocks are clipped.
+    let (w, h) = (320, 240);
+    let focal = 3.0;
+    let f = focal / PITCH;
+    let offset = [13.3, -7.6];
+    // Body ≈ 100 px across, off the axis, at 60° phase: limb and terminator.
+    let n = DVec3::new(0.004, -0.003, 1.0).normalize();
+    let camera = -n * 3.8e8;
+    let sun = DQuat::from_rotation_y(1.05) * (camera.normalize() * AU);
+    let scene = facility_scene_toml(camera, sun);
+    let alignment = format!("[alignment]\noffset_px = [{}, {}]", offset[0], offset[1]);
+    let with_block = |b: usize| {
+        let toml = facility_toml(w, h, focal, "", &alignment).replace(
+            "refresh_hz = 60.0",
+            &format!("refresh_hz = 60.0\nrender_block = {b}"),
+        );
+        let rig = Rig::new(&scene, &toml, None);
+        render_screen(&rig.config(), &rig.scene())
+    };
+    let (fine, _) = with_block(1);
+    // Flux of screen pixel (i, j) per unit radiance, from this test's own
+    // solid angles.
+    let omega = |i: usize, j: usize| {
+        let x0 = (i as f64 - w as f64 / 2.0 - offset[0]) / f;
+        let y0 = (j as f64 - h as f64 / 2.0 - offset[1]) / f;
+        pixel_solid_angle(x0, x0 + 1.0 / f, y0, y0 + 1.0 / f)
+    };
+    let total_fine: f64 = (0..w * h).map(|k| fine[k] * omega(k % w, k / w)).sum();
+    assert!(total_fine > 0.0);
+    for b in [2, 3] {
+        let (coarse, roi) = with_block(b);
+        let roi = roi.expect("body on screen");
+        // The screen region starts on a block corner.
+        assert_eq!((roi.x % b, roi.y % b), (0, 0), "block {b}: ROI {roi:?}");
+        // (fine flux, block flux, whether the block and a block around it
+        // are lit in the fine image).
+        let mut block_flux = Vec::new();
+        for by in 0..h.div_ceil(b) {
+            for bx in 0..w.div_ceil(b) {
+                let (mut fine_flux, mut coarse_flux) = (0.0, 0.0);
+                let first = coarse[by * b * w + bx * b];
+                let (i1, j1) = (((bx + 1) * b).min(w), ((by + 1) * b).min(h));
+                for j in by * b..j1 {
+                    for i in bx * b..i1 {
+                        let k = j * w + i;
+                        assert_eq!(
+                            coarse[k], first,
+                            "block {b}: pixel ({i}, {j}) differs from its block"
+                        );
+                        fine_flux += fine[k] * omega(i, j);
+                        coarse_flux += coarse[k] * omega(i, j);
+                    }
+                }
+                // Lit one block around: an interior pixel of both renders.
+                let lit = (by * b).saturating_sub(b)..(j1 + b).min(h);
+                let interior = lit.clone().all(|j| {
+                    ((bx * b).saturating_sub(b)..(i1 + b).min(w)).all(|i| fine[j * w + i] > 0.0)
+                });
+                block_flux.push((fine_flux, coarse_flux, interior));
+            }
+        }
+        let peak = block_flux.iter().map(|p| p.0).fold(0.0, f64::max);
+        let (mut inner, mut edge) = (0, 0);
+        let (mut worst_inner, mut worst_edge): (f64, f64) = (0.0, 0.0);
+        for &(a, c, interior) in &block_flux {
+            if interior {
+                inner += 1;
+                worst_inner = worst_inner.max((c - a).abs() / a);
+            } else if a > 0.05 * peak {
+                edge += 1;
+                worst_edge = worst_edge.max((c - a).abs() / a);
+            }
+        }
+        eprintln!("block {b}: {inner} interior blocks, worst {worst_inner:.2e}; {edge} edge blocks, worst {worst_edge:.2e}");
+        assert!(inner > 2000 / (b * b), "block {b}: {inner} interior blocks");
+        assert!(
+            worst_inner < 3e-4,
+            "block {b}: worst interior block flux error {worst_inner}"
+        );
+        assert!(
+            worst_edge < 5e-2,
+            "block {b}: worst edge block flux error {worst_edge}"
+        );
+        let total: f64 = block_flux.iter().map(|p| p.1).sum();
+        assert!(
+            (total / total_fine - 1.0).abs() < 2e-4,
+            "block {b}: total {total} vs {total_fine}"
+        );
+    }
+
+    // With a geometry file the ideal grid is coarsened instead and the
+    // pre-warp interpolates it: the total flux is kept.
+    let warped = Rig::new(
+        &scene,
+        &facility_toml(w, h, focal, "geometry = \"geometry.csv\"", "")
+            .replace("refresh_hz = 60.0", "refresh_hz = 60.0\nrender_block = 2"),
+        Some(&geometry_csv(w, h, 16, pinhole_model(w, h, f, offset, 0.0))),
+    );
+    let (img, _) = render_screen(&warped.config(), &warped.scene());
+    let total: f64 = (0..w * h).map(|k| img[k] * omega(k % w, k / w)).sum();
+    assert!(
+        (total / total_fine - 1.0).abs() < 2e-3,
+        "warped, block 2: total {total} vs {total_fine}"
+    );
+}
+
+// ---------------------------------------------------------------------------
 // 4. Cost scales with the body; the bundled example is what its tool says.
 
 /// The model documented in tools/make_geometry.py with its defaults.

@@ -4,13 +4,16 @@
 # summary (missed deadlines, latency state->present), the per-stage times,
 # and the resident memory sampled every second (steady after the first?).
 # With N > 1 each frame is shown for N refreshes ([timing]
-# refreshes_per_frame), the trajectory sampled at 60/N Hz.
-# usage: tools/bench_facility.sh [1920|2560] [FRAMES] [N]
+# refreshes_per_frame), the trajectory sampled at 60/N Hz. With BLOCK > 1
+# the renderer integrates BLOCK x BLOCK screen pixels per rendered pixel
+# ([screen] render_block).
+# usage: tools/bench_facility.sh [1920|2560] [FRAMES] [N] [BLOCK]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 screen=${1:-1920}
 frames=${2:-3600}
 per_frame=${3:-1}
+block=${4:-1}
 mkdir -p out/bench
 case $screen in
   1920) range=9.415e7 ;;   # 400 px at 92.3 µrad/px
@@ -20,11 +23,13 @@ esac
 rate=$(python3 -c "print(60.0 / $per_frame)")
 python3 tools/make_hold.py out/bench/hold_$screen.csv "$frames" "$range" "$rate"
 config=configs/bench_facility_$screen.toml
-if [ "$per_frame" != 1 ]; then
-  # The same facility with the frame clock divided; paths made absolute.
-  config=out/bench/bench_facility_${screen}_n$per_frame.toml
+if [ "$per_frame" != 1 ] || [ "$block" != 1 ]; then
+  # The same facility with the frame clock divided and/or render blocks;
+  # paths made absolute.
+  config=out/bench/bench_facility_${screen}_n${per_frame}_b$block.toml
   sed -e "s#^scene = \"#scene = \"$PWD/configs/#" -e "s#\"\.\./calib#\"$PWD/calib#" \
       -e "s#^\[timing\]#[timing]\nrefreshes_per_frame = $per_frame#" \
+      -e "s#^refresh_hz = \(.*\)#refresh_hz = \1\nrender_block = $block#" \
       configs/bench_facility_$screen.toml > "$config"
 fi
 cargo build --release -q

@@ -12,6 +12,7 @@
 //! pixel_pitch = 2.7e-4        # m
 //! monitor = 0                 # RandR monitor: index (0 = first) or name, e.g. "DP-1"
 //! refresh_hz = 60.0
+//! render_block = 1            # screen pixels per rendered pixel along each axis (1–8)
 //!
 //! [collimator]
 //! focal_length = 0.5          # m
@@ -63,6 +64,9 @@ use crate::error::{Error, Result};
 use super::display::MonitorSelect;
 use super::dither::DitherKind;
 use super::frame_id::Corner;
+
+/// Largest `screen.render_block`.
+pub const MAX_RENDER_BLOCK: usize = 8;
 
 /// Whole facility configuration.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -118,6 +122,17 @@ pub struct ScreenConfig {
     pub monitor: MonitorSelect,
     /// Refresh rate, Hz.
     pub refresh_hz: f64,
+    /// Screen pixels per rendered pixel along each axis: the renderer
+    /// integrates blocks of `render_block`² screen pixels, and each pixel
+    /// of a block shows the block's mean radiance. 1 renders every screen
+    /// pixel; a larger block divides the render's cost by about its
+    /// square, and is exact for a camera whose pixels span whole blocks.
+    #[serde(default = "one")]
+    pub render_block: usize,
+}
+
+fn one() -> usize {
+    1
 }
 
 /// `[collimator]`
@@ -400,6 +415,15 @@ impl FacilityConfig {
         }
         positive("screen.pixel_pitch", s.pixel_pitch)?;
         positive("screen.refresh_hz", s.refresh_hz)?;
+        if !(1..=MAX_RENDER_BLOCK).contains(&s.render_block) {
+            return Err(Error::invalid(
+                "screen.render_block",
+                format!(
+                    "must be an integer in 1..={MAX_RENDER_BLOCK}, found {}",
+                    s.render_block
+                ),
+            ));
+        }
         positive("collimator.focal_length", self.collimator.focal_length)?;
         let t = self.collimator.transmission;
         if !(t.is_finite() && t > 0.0 && t <= 1.0) {
@@ -561,6 +585,10 @@ state_timeout = 0.25
         assert_eq!(c.frame_id.corner, Corner::BottomRight);
         assert_eq!(c.sync.template, "FRAME {id} {t} {exposure_us}\n");
         assert_eq!(c.screen_size(), (1920, 1080));
+        assert_eq!(
+            c.screen.render_block, 1,
+            "default: every screen pixel rendered"
+        );
         assert_eq!(c.timing.state_timeout, 0.25);
     }
 
@@ -643,6 +671,18 @@ state_timeout = 0.25
             ),
             (GOOD.replace("monitor = 0", "monitor = -1"), "monitor"),
             (GOOD.replace("monitor = 0", "monitor = 1.5"), "monitor"),
+            (
+                GOOD.replace("refresh_hz = 60.0", "refresh_hz = 60.0\nrender_block = 0"),
+                "screen.render_block",
+            ),
+            (
+                GOOD.replace("refresh_hz = 60.0", "refresh_hz = 60.0\nrender_block = 9"),
+                "screen.render_block",
+            ),
+            (
+                GOOD.replace("refresh_hz = 60.0", "refresh_hz = 60.0\nrender_block = 1.5"),
+                "render_block",
+            ),
         ];
         for (text, key) in cases {
             let m = e(text);

@@ -92,13 +92,16 @@ struct Job {
 /// screen.
 pub struct ScreenModel {
     renderer: Renderer,
+    /// Screen pixels per rendered pixel along each axis (`screen.render_block`).
+    block: usize,
     solid_angle: Vec<f32>,
     band_irradiance_1au: f64,
     albedo: Option<f64>,
     screen: (usize, usize),
     rotation: f64,
     warp: Option<PreWarp>,
-    /// Radiance over the ideal ROI (pre-warp only).
+    /// Radiance over the rendered ROI, when it is not the screen's: the
+    /// ideal grid of the pre-warp, or a grid of blocks.
     ideal_target: Vec<f32>,
     roi_target: Vec<f32>,
 }
@@ -114,6 +117,23 @@ pub fn screen_pinhole(config: &FacilityConfig) -> Pinhole {
         fy: f,
         cx: w as f64 / 2.0 + config.alignment.offset_px[0],
         cy: h as f64 / 2.0 + config.alignment.offset_px[1],
+    }
+}
+
+/// The grid the renderer draws on without a geometric calibration: the
+/// screen pinhole with `screen.render_block`² screen pixels per pixel.
+/// Rendered pixel (I, J) covers screen pixels [bI, bI + b) × [bJ, bJ + b).
+pub fn block_pinhole(config: &FacilityConfig) -> Pinhole {
+    let screen = screen_pinhole(config);
+    let b = config.screen.render_block.max(1);
+    let s = 1.0 / b as f64;
+    Pinhole {
+        width: screen.width.div_ceil(b),
+        height: screen.height.div_ceil(b),
+        fx: screen.fx * s,
+        fy: screen.fy * s,
+        cx: screen.cx * s,
+        cy: screen.cy * s,
     }
 }
 
@@ -191,10 +211,11 @@ impl ScreenModel {
         scene: &Scene,
         geometry: Option<&GeometryCalibration>,
     ) -> Self {
+        let block = config.screen.render_block.max(1);
         let warp = geometry.map(|g| {
-            let warp = PreWarp::new(g);
+            let warp = PreWarp::with_block(g, block);
             let nominal = config.collimator.focal_length / config.screen.pixel_pitch;
-            let f = warp.ideal_pinhole().fx;
+            let f = warp.ideal_pinhole().fx * block as f64;
             if (f / nominal - 1.0).abs() > 0.05 {
                 tracing::warn!(
                     file = %g.path().display(),
@@ -207,8 +228,17 @@ impl ScreenModel {
         });
         let pin = match &warp {
             Some(w) => w.ideal_pinhole().clone(),
-            None => screen_pinhole(config),
+            None => block_pinhole(config),
         };
+        let camera_fx = scene.camera.pinhole.fx.min(scene.camera.pinhole.fy);
+        if block > 1 && pin.fx < camera_fx {
+            tracing::warn!(
+                render_block = block,
+                block_urad = 1e6 / pin.fx,
+                camera_pixel_urad = 1e6 / camera_fx,
+                "the camera's pixels are smaller than a render block: it resolves the blocks"
+            );
+        }
         let renderer = Renderer::new(pin.clone());
         let solid_angle = pin.solid_angle_table();
         let cam = &scene.camera;
@@ -228,6 +258,7 @@ impl ScreenModel {
             .then(|| scene.body.reflectance.albedo_at(bands[0].centroid));
         ScreenModel {
             renderer,
+            block,
             solid_angle,
             band_irradiance_1au: bands[0].irradiance_1au,
             albedo,
@@ -262,7 +293,7 @@ impl ScreenModel {
         let r = stats.roi;
         let w = self.renderer.camera().width;
         let flux = self.renderer.flux();
-        let out = if self.warp.is_some() {
+        let out = if self.warp.is_some() || self.block > 1 {
             &mut self.ideal_target
         } else {
             &mut self.roi_target
@@ -281,7 +312,15 @@ impl ScreenModel {
         match &mut self.warp {
             // Always called, so the previous frame's ideal radiance is cleared.
             Some(warp) => warp.apply(ideal, &self.ideal_target, &mut self.roi_target),
-            None => (!r.is_empty()).then_some(ideal),
+            None if r.is_empty() => None,
+            None if self.block == 1 => Some(ideal),
+            None => Some(expand_blocks(
+                ideal,
+                &self.ideal_target,
+                self.block,
+                self.screen,
+                &mut self.roi_target,
+            )),
         }
     }
 
@@ -290,6 +329,32 @@ impl ScreenModel {
     pub fn target(&self) -> &[f32] {
         &self.roi_target
     }
+}
+
+/// Spreads the radiance of rendered blocks (row-major over `blocks`, a
+/// region of the block grid) over their screen pixels into `out`
+/// (row-major over the returned screen region, clipped to the screen):
+/// every pixel of a block shows the block's mean radiance, so each block
+/// sends the flux that was integrated over it.
+fn expand_blocks(
+    blocks: Roi,
+    radiance: &[f32],
+    block: usize,
+    screen: (usize, usize),
+    out: &mut Vec<f32>,
+) -> Roi {
+    let x0 = blocks.x * block;
+    let y0 = blocks.y * block;
+    let x1 = ((blocks.x + blocks.width) * block).min(screen.0);
+    let y1 = ((blocks.y + blocks.height) * block).min(screen.1);
+    let roi = Roi::new(x0, y0, x1.saturating_sub(x0), y1.saturating_sub(y0));
+    out.clear();
+    out.reserve(roi.area());
+    for y in y0..y1 {
+        let src = &radiance[(y / block - blocks.y) * blocks.width..][..blocks.width];
+        out.extend((x0..x1).map(|x| src[x / block - blocks.x]));
+    }
+    roi
 }
 
 /// Frame source used by the render thread.

@@ -477,6 +477,12 @@ impl PreWarp {
     /// Builds the ideal grid and the lookups (start-up cost: a few
     /// operations per screen pixel).
     pub fn new(cal: &GeometryCalibration) -> PreWarp {
+        Self::with_block(cal, 1)
+    }
+
+    /// As [`new`](Self::new) with an ideal grid `block` times coarser than
+    /// the screen's finest scale (`screen.render_block`).
+    pub fn with_block(cal: &GeometryCalibration, block: usize) -> PreWarp {
         let (w, h) = cal.screen;
         // Per-column and per-row weights: the lattice is a tensor product.
         let cols: Vec<_> = (0..w)
@@ -518,7 +524,7 @@ impl PreWarp {
                 hi[k] = hi[k].max(t[k]);
             }
         }
-        let f = cal.finest_scale;
+        let f = cal.finest_scale / block.max(1) as f64;
         let m = MARGIN as f64;
         let ideal = Pinhole {
             width: ((hi[0] - lo[0]) * f).ceil() as usize + 2 * MARGIN,
