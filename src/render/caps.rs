@@ -732,33 +732,32 @@ impl Footprint {
         map: &EquirectMap,
         mut store: impl FnMut(usize, f64),
     ) -> f64 {
-        let (a1, a2) = (self.a1, self.a2);
-        let kf = K as f64;
-        let bx = (a1.0.abs() + a2.0.abs()) / kf;
-        let by = (a1.1.abs() + a2.1.abs()) / kf;
-        let area = (a1.0 * a2.1 - a1.1 * a2.0).abs() / (K * K) as f64;
-        // The sample's box (sx, sy): the bounding box (bx, by) shrunk to the
-        // sample's area, compared squared so the common case takes no root.
-        let (sx2, sy2) = if bx * by > 0.0 {
-            (bx * area / by, by * area / bx)
-        } else {
-            (bx * bx, by * by)
-        };
-        const SMALL2: f64 = 1.5 * 1.5;
-        if sx2 <= SMALL2 && sy2 <= SMALL2 {
+        let (sx2, sy2) = self.part_box2(K);
+        if sx2 <= BOX_MIN2 && sy2 <= BOX_MIN2 {
             self.each::<K>(|x, y| map.sample_texel(x, y), &mut store)
-        } else if sy2 <= SMALL2 {
+        } else if sy2 <= BOX_MIN2 {
             let stretched = map.stretched(sx2.sqrt());
             self.each::<K>(|x, y| stretched.sample(x, y), &mut store)
         } else {
             let (hx, hy) = (0.5 * (1.0 + sx2).sqrt(), 0.5 * (1.0 + sy2).sqrt());
-            self.each::<K>(
-                |x, y| {
-                    let (la, lo) = map.lat_lon_of(x, y);
-                    map.box_average(la, lo, hx, hy)
-                },
-                &mut store,
-            )
+            self.each::<K>(|x, y| map.box_average_texel(x, y, hx, hy), &mut store)
+        }
+    }
+
+    /// Squared size (sx², sy²) [texels²] of the box standing for one of
+    /// the k×k parts: the part's bounding box shrunk to its area. Squared,
+    /// so the common case takes no root.
+    #[inline(always)]
+    fn part_box2(&self, k: usize) -> (f64, f64) {
+        let (a1, a2) = (self.a1, self.a2);
+        let kf = k as f64;
+        let bx = (a1.0.abs() + a2.0.abs()) / kf;
+        let by = (a1.1.abs() + a2.1.abs()) / kf;
+        let area = (a1.0 * a2.1 - a1.1 * a2.0).abs() / (kf * kf);
+        if bx * by > 0.0 {
+            (bx * area / by, by * area / bx)
+        } else {
+            (bx * bx, by * by)
         }
     }
 
@@ -787,6 +786,10 @@ impl Footprint {
         sum / (K * K) as f64
     }
 }
+
+/// Parts of a footprint larger than this [texels] along an axis are
+/// averaged over a box, not sampled (squared).
+const BOX_MIN2: f64 = 1.5 * 1.5;
 
 /// A convex polygon of at most 8 vertices.
 #[derive(Clone, Copy)]

@@ -85,6 +85,23 @@ fn bilinear(data: &[f32], w: usize, h: usize, x: f64, y: f64) -> f64 {
     t + (b - t) * ty
 }
 
+/// A position along one axis of a summed-area table: the cell it falls in
+/// and the fraction into it, for x clamped to [0, n].
+#[derive(Clone, Copy)]
+struct SatPos {
+    i: usize,
+    f: f64,
+}
+
+impl SatPos {
+    #[inline(always)]
+    fn new(x: f64, n: usize) -> SatPos {
+        let x = x.clamp(0.0, n as f64);
+        let i = (x as i64 as usize).min(n - 1);
+        SatPos { i, f: x - i as f64 }
+    }
+}
+
 /// Latitude and longitude [rad] of a body-fixed direction (need not be unit).
 #[inline]
 pub fn lat_lon(n: DVec3) -> (f64, f64) {
@@ -323,19 +340,15 @@ impl EquirectMap {
         })
     }
 
-    /// ∫ of the texel-constant map over [0, x] × [0, y] (texel units,
-    /// x ∈ [0, W], y ∈ [0, H]): bilinear in the summed-area table, exact.
-    #[inline]
-    fn cumulative(sat: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
-        let x = x.clamp(0.0, w as f64);
-        let y = y.clamp(0.0, h as f64);
-        let i = (x as usize).min(w - 1);
-        let j = (y as usize).min(h - 1);
-        let (fx, fy) = (x - i as f64, y - j as f64);
-        let s = w + 1;
-        let a = sat[j * s + i] * (1.0 - fx) + sat[j * s + i + 1] * fx;
-        let b = sat[(j + 1) * s + i] * (1.0 - fx) + sat[(j + 1) * s + i + 1] * fx;
-        a * (1.0 - fy) + b * fy
+    /// ∫ of the texel-constant map over [0, x] × [0, y] (texel units):
+    /// bilinear in the summed-area table `sat` (rows `s` wide), exact.
+    #[inline(always)]
+    fn cumulative(sat: &[f64], s: usize, x: SatPos, y: SatPos) -> f64 {
+        // Rows y.i and y.i + 1, columns x.i and x.i + 1: one bounds check.
+        let r = &sat[y.i * s + x.i..][..s + 2];
+        let a = r[0] * (1.0 - x.f) + r[1] * x.f;
+        let b = r[s] * (1.0 - x.f) + r[s + 1] * x.f;
+        a * (1.0 - y.f) + b * y.f
     }
 
     /// Mean of the map over a box centred at lat/lon with half-sizes in
@@ -343,25 +356,46 @@ impl EquirectMap {
     /// reproduces bilinear interpolation; callers widen small boxes to that,
     /// so the mean is continuous from point sampling to area averaging.
     pub fn box_average(&self, lat: f64, lon: f64, half_x: f64, half_y: f64) -> f64 {
+        let (x, y) = self.texel(lat, lon);
+        self.box_average_texel(x, y, half_x, half_y)
+    }
+
+    /// [`box_average`](Self::box_average) at continuous texel coordinates
+    /// (integer = texel centre).
+    #[inline]
+    pub fn box_average_texel(&self, x: f64, y: f64, half_x: f64, half_y: f64) -> f64 {
         let (w, h) = (self.width, self.height);
         let sat = self.sat();
-        // Callers may pass a longitude past ±π (a footprint straddling the
-        // seam): wrap it so the box starts in [0, W).
-        let x = ((lon + PI) / TAU * w as f64).rem_euclid(w as f64);
-        let y = (FRAC_PI_2 - lat) / PI * h as f64;
-        let half_x = half_x.min(0.5 * w as f64);
+        let wf = w as f64;
+        // In the table, texel i spans [i, i + 1). Callers may pass a
+        // longitude past ±π (a footprint straddling the seam): wrap it so
+        // the box starts in [0, W), without a division unless it is far off.
+        let (texel_x, texel_y) = (x, y);
+        let mut x = x + 0.5;
+        if x < 0.0 {
+            x += wf;
+        } else if x >= wf {
+            x -= wf;
+        }
+        if !(0.0..wf).contains(&x) {
+            x = x.rem_euclid(wf);
+        }
+        let y = y + 0.5;
+        let half_x = half_x.min(0.5 * wf);
         let (y0, y1) = ((y - half_y).max(0.0), (y + half_y).min(h as f64));
         if y1 <= y0 {
-            return self.sample(lat, lon);
+            return self.sample_texel(texel_x, texel_y);
         }
+        let s = w + 1;
+        let (r0, r1) = (SatPos::new(y0, h), SatPos::new(y1, h));
         let strip = |x0: f64, x1: f64| {
-            Self::cumulative(sat, w, h, x1, y1)
-                - Self::cumulative(sat, w, h, x0, y1)
-                - Self::cumulative(sat, w, h, x1, y0)
-                + Self::cumulative(sat, w, h, x0, y0)
+            let (c0, c1) = (SatPos::new(x0, w), SatPos::new(x1, w));
+            Self::cumulative(sat, s, c1, r1)
+                - Self::cumulative(sat, s, c0, r1)
+                - Self::cumulative(sat, s, c1, r0)
+                + Self::cumulative(sat, s, c0, r0)
         };
         let (mut x0, mut x1) = (x - half_x, x + half_x);
-        let wf = w as f64;
         if x0 < 0.0 {
             x0 += wf;
             x1 += wf;
