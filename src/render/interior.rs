@@ -233,6 +233,9 @@ struct Lattice {
     nodes: Vec<Option<Factors>>,
     /// Lagrange weights of the pixels at offsets 0..step from a node.
     weights: Vec<[f64; 4]>,
+    /// For each ROI column: its lattice column (the stencil's second) and
+    /// offset from it, so the pixel loop does not divide.
+    column_of: Vec<(usize, usize)>,
     /// Map width [texels] (for longitude unwrapping).
     map_width: f64,
 }
@@ -309,6 +312,9 @@ impl Lattice {
         self.weights.clear();
         self.weights
             .extend((0..step).map(|r| lagrange(r as f64 / step as f64)));
+        self.column_of.clear();
+        self.column_of
+            .extend((0..roi.width()).map(|ii| (ii / step + 1, ii % step)));
         self.nodes.clear();
         self.nodes.resize(self.cols * rows, None);
         let origin_u = roi.x0 as f64 + 0.5 - step as f64;
@@ -341,14 +347,14 @@ impl Lattice {
     /// The factors at ROI column `ii` of the row whose columns are given.
     #[inline]
     fn factors_at(&self, columns: &[Option<Factors>], ii: usize) -> Option<Factors> {
-        let m = ii / self.step + 1;
+        let (m, offset) = self.column_of[ii];
         let q = [
             columns[m - 1].as_ref()?,
             columns[m].as_ref()?,
             columns[m + 1].as_ref()?,
             columns[m + 2].as_ref()?,
         ];
-        Some(combine(q, &self.weights[ii % self.step], self.map_width))
+        Some(combine(q, &self.weights[offset], self.map_width))
     }
 
     /// A pixel's flux from its interpolated factors.
