@@ -25,10 +25,12 @@ fn main() -> anyhow::Result<()> {
     let mut renderer = Renderer::new(scene.camera.pinhole.clone());
     let mut total = Vec::new();
     let mut stages: [Vec<f64>; 4] = Default::default();
+    let mut last = None;
     for _ in 0..renders.max(1) {
         let t = Instant::now();
         let stats = renderer.render_flux(&scene.body, &scene.state, &scene.render, None);
         total.push(t.elapsed().as_secs_f64() * 1e3);
+        last = Some(stats);
         let s = stats.stages;
         for (v, x) in stages
             .iter_mut()
@@ -44,5 +46,15 @@ fn main() -> anyhow::Result<()> {
         rayon::current_num_threads(),
         median(total)
     );
+    if let Some(s) = last {
+        println!(
+            "caps laid out {}, integrated {}, leaf cells {}, interior pixels {}, phase {:.1}°",
+            s.caps,
+            s.caps_integrated,
+            s.cells,
+            s.interior_pixels,
+            s.phase_angle.to_degrees()
+        );
+    }
     Ok(())
 }

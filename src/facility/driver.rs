@@ -809,6 +809,27 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
 mod tests {
     use super::*;
 
+    /// Blocks at the screen's bottom-right corner, the last ones cut by
+    /// the screen edge (a body partly off screen): every visible pixel
+    /// shows its own block's value and none is written past the edge.
+    #[test]
+    fn blocks_expand_onto_their_pixels_and_stop_at_the_screen_edge() {
+        let screen = (7, 5);
+        // Block grid of a 7 × 5 screen with blocks of 3: 3 × 2 blocks;
+        // the region is blocks (1..3) × (0..2), values 10 · row + column.
+        let blocks = Roi::new(1, 0, 2, 2);
+        let radiance = [0.0, 1.0, 10.0, 11.0];
+        let mut out = Vec::new();
+        let roi = expand_blocks(blocks, &radiance, 3, screen, &mut out);
+        assert_eq!(roi, Roi::new(3, 0, 4, 5));
+        assert_eq!(out.len(), roi.area());
+        for (k, &v) in out.iter().enumerate() {
+            let (x, y) = (roi.x + k % roi.width, roi.y + k / roi.width);
+            let expected = 10.0 * (y / 3) as f32 + (x / 3 - 1) as f32;
+            assert_eq!(v, expected, "pixel ({x}, {y})");
+        }
+    }
+
     #[test]
     fn refreshes_needed_leaves_a_quarter_of_margin() {
         let refresh = Duration::from_secs_f64(1.0 / 60.0);
