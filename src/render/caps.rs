@@ -942,12 +942,16 @@ impl Sink<'_> {
 /// Bounding box (x0, y0, x1, y1) of a projected footprint.
 #[inline]
 fn bounds(quad: &[(f64, f64); 4]) -> (f64, f64, f64, f64) {
+    // Plain comparisons (one instruction each, not NaN-aware min/max):
+    // callers pass finite corners.
+    let lo = |a: f64, b: f64| if b < a { b } else { a };
+    let hi = |a: f64, b: f64| if b > a { b } else { a };
     let (mut x0, mut y0, mut x1, mut y1) = (quad[0].0, quad[0].1, quad[0].0, quad[0].1);
     for p in &quad[1..] {
-        x0 = x0.min(p.0);
-        x1 = x1.max(p.0);
-        y0 = y0.min(p.1);
-        y1 = y1.max(p.1);
+        x0 = lo(x0, p.0);
+        x1 = hi(x1, p.0);
+        y0 = lo(y0, p.1);
+        y1 = hi(y1, p.1);
     }
     (x0, y0, x1, y1)
 }
