@@ -125,8 +125,10 @@ pub struct ScreenConfig {
     /// Screen pixels per rendered pixel along each axis: the renderer
     /// integrates blocks of `render_block`² screen pixels, and each pixel
     /// of a block shows the block's mean radiance. 1 renders every screen
-    /// pixel; a larger block divides the render's cost by about its
-    /// square, and is exact for a camera whose pixels span whole blocks.
+    /// pixel; blocks of 2 about halve the render's cost (BENCHMARKS.md).
+    /// Each block sends the flux integrated over it; the camera sees that
+    /// flux spread over the block, so the limb and the map's finer detail
+    /// blur unless the camera's pixels span several blocks.
     #[serde(default = "one")]
     pub render_block: usize,
 }
