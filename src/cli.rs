@@ -53,6 +53,7 @@ struct BenchRow {
     caps_per_pixel: f64,
     texture_samples: usize,
     node_spacing: usize,
+    pixel_tolerance: f64,
     interior_pixels: usize,
     caps: u64,
     /// Caps integrated: laid out and not wholly on interior pixels.
@@ -108,6 +109,8 @@ pub struct BenchSweep {
     pub texture_samples: Vec<usize>,
     /// Interior node-lattice spacings [px].
     pub node_spacings: Vec<usize>,
+    /// Interior pixel quadrature tolerances.
+    pub pixel_tolerances: Vec<f64>,
 }
 
 /// `optistim bench`: time against error for several densities, against the
@@ -124,6 +127,7 @@ pub fn bench(
         interior,
         texture_samples,
         node_spacings,
+        pixel_tolerances,
     } = sweep;
     let modes = interior
         .iter()
@@ -143,6 +147,12 @@ pub fn bench(
     } else {
         node_spacings
     };
+    let scene_tolerance = [base.render.pixel_tolerance];
+    let pixel_tolerances = if pixel_tolerances.is_empty() {
+        &scene_tolerance[..]
+    } else {
+        pixel_tolerances
+    };
     let texture_samples = if texture_samples.is_empty() {
         &scene_samples[..]
     } else {
@@ -158,8 +168,8 @@ pub fn bench(
         pin.height,
         base.body.reflectance.name()
     );
-    println!("| phase [deg] | interior | caps/px | map samples | node spacing | caps | integrated | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| phase [deg] | interior | caps/px | map samples | node spacing | pixel tol. | caps | integrated | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for &phase in phases {
         let mut scene = base.clone();
         at_phase(&mut scene, phase);
@@ -178,9 +188,13 @@ pub fn bench(
                 .iter()
                 .flat_map(move |&d| texture_samples.iter().map(move |&k| (m, d, k)))
                 .flat_map(move |(m, d, k)| node_spacings.iter().map(move |&n| (m, d, k, n)))
+                .flat_map(move |(m, d, k, n)| {
+                    pixel_tolerances.iter().map(move |&e| (m, d, k, n, e))
+                })
         });
-        for (mode, density, samples, spacing) in points {
+        for (mode, density, samples, spacing, tolerance) in points {
             settings.node_spacing = spacing;
+            settings.pixel_tolerance = tolerance;
             settings.caps_per_pixel = Some(density);
             settings.min_caps = scene.render.min_caps;
             settings.interior = mode;
@@ -227,6 +241,7 @@ pub fn bench(
                 caps_per_pixel: density,
                 texture_samples: samples,
                 node_spacing: spacing,
+                pixel_tolerance: tolerance,
                 interior_pixels,
                 caps,
                 caps_integrated,
@@ -240,7 +255,7 @@ pub fn bench(
             };
             let [lay, mask, cap, int] = stage_median_ms;
             println!(
-                "| {:.0} | {:?} | {} | {}×{} | {spacing} | {} | {} | {} | {:.2} | {:.2} | {lay:.2} / {mask:.2} / {cap:.2} / {int:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
+                "| {:.0} | {:?} | {} | {}×{} | {spacing} | {tolerance:.0e} | {} | {} | {} | {:.2} | {:.2} | {lay:.2} / {mask:.2} / {cap:.2} / {int:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
                 row.phase_deg,
                 row.interior,
                 row.caps_per_pixel,

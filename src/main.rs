@@ -56,6 +56,10 @@ enum Command {
         /// evaluated); default: the scene's.
         #[arg(long, value_delimiter = ',')]
         node_spacing: Vec<usize>,
+        /// Interior pixel quadrature tolerances to time (`[render]
+        /// pixel_tolerance`); default: the scene's.
+        #[arg(long, value_delimiter = ',')]
+        pixel_tolerance: Vec<f64>,
         /// Repetitions per point (median reported).
         #[arg(long, default_value_t = 30)]
         repeats: usize,
@@ -110,6 +114,7 @@ fn main() -> ExitCode {
             interior,
             texture_samples,
             node_spacing,
+            pixel_tolerance,
             repeats,
             json,
         } => cli::bench(
@@ -120,6 +125,7 @@ fn main() -> ExitCode {
                 interior,
                 texture_samples,
                 node_spacings: node_spacing,
+                pixel_tolerances: pixel_tolerance,
             },
             repeats,
             json.as_deref(),

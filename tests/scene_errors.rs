@@ -34,6 +34,8 @@ fn each_malformed_scene_names_its_error() {
         ("unknown key", good.replace("bits = 12", "bits = 12\ncolour = true"), "colour"),
         ("unknown model", good.replace("\"lambert\"", "\"phong\""), "phong"),
         ("node spacing 0", good.replace("[render]\n", "[render]\nnode_spacing = 0\n"), "render.node_spacing"),
+        ("pixel tolerance 0.5", good.replace("[render]\n", "[render]\npixel_tolerance = 0.5\n"), "render.pixel_tolerance"),
+        ("pixel tolerance NaN", good.replace("[render]\n", "[render]\npixel_tolerance = nan\n"), "render.pixel_tolerance"),
         ("texture samples 9", good.replace("[render]\n", "[render]\ntexture_samples = 9\n"), "render.texture_samples"),
         ("band in nm", good.replace("band = [450e-9, 820e-9]", "band = [450, 820]"), "camera.band"),
         ("camera inside body", good.replace("[state]\ncamera_position = [", "[state]\ncamera_position = [1.0, 0.0, 0.0]\nignored = ["), "ignored"),

@@ -15,9 +15,10 @@
 //! Toward the limb μ ∝ √(distance), and so is μ0 where the Sun is behind
 //! the camera: the midpoint rule's relative error there is about
 //! 1/(24 μ³ μ0 R²) (R the apparent radius in pixels). Where that exceeds
-//! [`MIDPOINT_TOLERANCE`] a pixel takes 2×2 Gauss points, and 4×4 where the
-//! 2×2 rule moved far from the midpoint or within [`GAUSS2_MIN_PX`] of the
-//! limb.
+//! the pixel tolerance (`[render] pixel_tolerance`, default
+//! [`DEFAULT_PIXEL_TOLERANCE`]) a pixel takes 2×2 Gauss points, and 4×4
+//! where the 2×2 rule moved far from the midpoint or within
+//! [`GAUSS2_MIN_PX`] of the limb.
 //!
 //! The classification is conservative: a pixel is interior only if every
 //! corner of its 3×3 neighbourhood hits the sphere lit and unshadowed, so a
@@ -34,13 +35,16 @@ pub const MIN_RADIUS_PX: f64 = 12.0;
 /// Default spacing [px] of the interior pixels' node lattice
 /// ([`super::RenderSettings::node_spacing`]).
 pub const DEFAULT_NODE_SPACING: usize = 4;
-/// Estimated relative error up to which one point per pixel is kept.
-pub const MIDPOINT_TOLERANCE: f64 = 1e-4;
+/// Default estimated relative error up to which one point per pixel is
+/// kept ([`super::RenderSettings::pixel_tolerance`]).
+pub const DEFAULT_PIXEL_TOLERANCE: f64 = 1e-4;
 /// Distance from the limb [px] from which 2×2 Gauss points may suffice.
 pub const GAUSS2_MIN_PX: f64 = 1.2;
-/// Largest relative change from the midpoint to the 2×2 rule for which the
-/// 2×2 rule is kept; beyond it, 4×4.
-const GAUSS2_MAX_STEP: f64 = 2e-3;
+/// Largest relative change from the midpoint to the 2×2 rule, in pixel
+/// tolerances, for which the 2×2 rule is kept; beyond it, 4×4. The
+/// midpoint's error is ~20× the 2×2 rule's, so past this step the 2×2
+/// rule may exceed the tolerance.
+const GAUSS2_MAX_STEP: f64 = 20.0;
 /// Which pixels of the ROI are integrated per pixel, with a summed-area
 /// table for rectangle queries. Buffers are reused between frames.
 #[derive(Default)]
@@ -458,13 +462,16 @@ pub struct PixelRays {
     radius_px: f64,
     /// Whether the lit, visible disk is convex on the image.
     pub convex: bool,
+    /// Estimated relative quadrature error allowed per pixel.
+    tolerance: f64,
 }
 
 impl PixelRays {
     /// Rays for `frame`, or None when interior pixels do not apply: the
     /// distant-observer mode, a displacement map (the silhouette is not the
     /// sphere's), the camera inside the sphere, or a body too small.
-    pub fn new(frame: &Frame) -> Option<PixelRays> {
+    /// `tolerance`: see [`super::RenderSettings::pixel_tolerance`].
+    pub fn new(frame: &Frame, tolerance: f64) -> Option<PixelRays> {
         if frame.distant || frame.body.relief.height.is_some() {
             return None;
         }
@@ -497,6 +504,7 @@ impl PixelRays {
             camera_local: frame.lune.camera_local(),
             radius_px: apparent,
             convex: frame.lune.alpha <= std::f64::consts::FRAC_PI_2 && frame.occulter.is_none(),
+            tolerance,
         })
     }
 
@@ -623,14 +631,14 @@ impl PixelRays {
     }
 
     /// Whether one point per pixel is enough at `s`: the midpoint rule's
-    /// estimated relative error 1/(24 μ³ μ0 R²) is within
-    /// [`MIDPOINT_TOLERANCE`].
+    /// estimated relative error 1/(24 μ³ μ0 R²) is within the pixel
+    /// tolerance.
     #[inline]
     fn midpoint_suffices(&self, s: &Surface) -> bool {
         let mu = Self::mu(s);
         let mu0 = s.n_local.x.max(1e-6);
         let r2 = self.radius_px * self.radius_px;
-        24.0 * mu * mu * mu * mu0 * r2 * MIDPOINT_TOLERANCE >= 1.0
+        24.0 * mu * mu * mu * mu0 * r2 * self.tolerance >= 1.0
     }
 
     /// The lattice factors at pixel position (u, v), or None where a pixel
@@ -698,9 +706,8 @@ impl PixelRays {
             sum
         };
         let two = gauss(&GAUSS2);
-        // The midpoint's error is ~20× the 2×2 rule's: where it exceeds
-        // GAUSS2_MAX_STEP, the 2×2 rule may exceed 1e-4.
-        if to_limb >= GAUSS2_MIN_PX && (two - midpoint).abs() <= GAUSS2_MAX_STEP * two.abs() {
+        let max_step = GAUSS2_MAX_STEP * self.tolerance;
+        if to_limb >= GAUSS2_MIN_PX && (two - midpoint).abs() <= max_step * two.abs() {
             two
         } else {
             gauss(&GAUSS4)

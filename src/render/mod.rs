@@ -60,6 +60,11 @@ pub struct RenderSettings {
     /// smooth factors (geometry, reflectance model, map footprint) and
     /// interpolate them (`interior::Lattice`); 1 evaluates every pixel.
     pub node_spacing: usize,
+    /// Estimated relative error of an interior pixel's quadrature up to
+    /// which it keeps one point (then 2×2, then 4×4 Gauss points). Only
+    /// pixels near the limb reach it; default
+    /// [`interior::DEFAULT_PIXEL_TOLERANCE`].
+    pub pixel_tolerance: f64,
 }
 
 /// How the pixels inside the lit disk are integrated.
@@ -86,6 +91,7 @@ impl Default for RenderSettings {
             texture_samples: 2,
             interior: Interior::Pixels,
             node_spacing: interior::DEFAULT_NODE_SPACING,
+            pixel_tolerance: interior::DEFAULT_PIXEL_TOLERANCE,
         }
     }
 }
@@ -109,6 +115,12 @@ impl RenderSettings {
         }
         if !(1..=16).contains(&self.node_spacing) {
             return Err(Error::invalid("render.node_spacing", "must be in 1..=16"));
+        }
+        if !(self.pixel_tolerance >= 1e-6 && self.pixel_tolerance <= 1e-2) {
+            return Err(Error::invalid(
+                "render.pixel_tolerance",
+                "must be in [1e-6, 1e-2]",
+            ));
         }
         if let Some(n) = self.sub_bands {
             if n == 0 || n > 1000 {
@@ -305,7 +317,7 @@ impl Renderer {
         let t_mask = Instant::now();
         stats.stages.layout = (t_mask - t_layout).as_secs_f64();
         let rays = match settings.interior {
-            Interior::Pixels => PixelRays::new(&frame),
+            Interior::Pixels => PixelRays::new(&frame, settings.pixel_tolerance),
             Interior::Caps => None,
         };
         let rays = rays.filter(|r| {
