@@ -6,14 +6,16 @@
 # With N > 1 each frame is shown for N refreshes ([timing]
 # refreshes_per_frame), the trajectory sampled at 60/N Hz. With BLOCK > 1
 # the renderer integrates BLOCK x BLOCK screen pixels per rendered pixel
-# ([screen] render_block).
-# usage: tools/bench_facility.sh [1920|2560] [FRAMES] [N] [BLOCK]
+# ([screen] render_block). With TOL the scene's interior pixels use that
+# quadrature tolerance ([render] pixel_tolerance, default 1e-4).
+# usage: tools/bench_facility.sh [1920|2560] [FRAMES] [N] [BLOCK] [TOL]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 screen=${1:-1920}
 frames=${2:-3600}
 per_frame=${3:-1}
 block=${4:-1}
+tol=${5:-}
 mkdir -p out/bench
 case $screen in
   1920) range=9.415e7 ;;   # 400 px at 92.3 µrad/px
@@ -23,11 +25,17 @@ esac
 rate=$(python3 -c "print(60.0 / $per_frame)")
 python3 tools/make_hold.py out/bench/hold_$screen.csv "$frames" "$range" "$rate"
 config=configs/bench_facility_$screen.toml
-if [ "$per_frame" != 1 ] || [ "$block" != 1 ]; then
-  # The same facility with the frame clock divided and/or render blocks;
-  # paths made absolute.
-  config=out/bench/bench_facility_${screen}_n${per_frame}_b$block.toml
-  sed -e "s#^scene = \"#scene = \"$PWD/configs/#" -e "s#\"\.\./calib#\"$PWD/calib#" \
+if [ "$per_frame" != 1 ] || [ "$block" != 1 ] || [ -n "$tol" ]; then
+  # The same facility with the frame clock divided, render blocks and/or
+  # the scene's pixel tolerance; paths made absolute.
+  config=out/bench/bench_facility_${screen}_n${per_frame}_b$block${tol:+_t$tol}.toml
+  scene_dir=$PWD/configs
+  if [ -n "$tol" ]; then
+    scene_dir=$PWD/out/bench
+    sed -e "s#\"\.\./data#\"$PWD/data#" configs/moon.toml > "$scene_dir/moon.toml"
+    printf '\n[render]\npixel_tolerance = %s\n' "$tol" >> "$scene_dir/moon.toml"
+  fi
+  sed -e "s#^scene = \"#scene = \"$scene_dir/#" -e "s#\"\.\./calib#\"$PWD/calib#" \
       -e "s#^\[timing\]#[timing]\nrefreshes_per_frame = $per_frame#" \
       -e "s#^refresh_hz = \(.*\)#refresh_hz = \1\nrender_block = $block#" \
       configs/bench_facility_$screen.toml > "$config"
