@@ -48,11 +48,14 @@ fn main() -> anyhow::Result<()> {
     );
     if let Some(s) = last {
         println!(
-            "caps laid out {}, integrated {}, leaf cells {}, interior pixels {}, phase {:.1}°",
+            "caps laid out {}, integrated {}, leaf cells {}, interior pixels {} (direct: {} by 1 point, {} by 2×2, {} by 4×4), phase {:.1}°",
             s.caps,
             s.caps_integrated,
             s.cells,
             s.interior_pixels,
+            s.interior_direct.midpoint,
+            s.interior_direct.gauss2,
+            s.interior_direct.gauss4,
             s.phase_angle.to_degrees()
         );
     }

@@ -55,6 +55,8 @@ struct BenchRow {
     node_spacing: usize,
     pixel_tolerance: f64,
     interior_pixels: usize,
+    /// Interior pixels evaluated directly, by quadrature rule.
+    interior_direct: optistim::render::interior::DirectCounts,
     caps: u64,
     /// Caps integrated: laid out and not wholly on interior pixels.
     caps_integrated: u64,
@@ -205,6 +207,7 @@ pub fn bench(
             let mut caps = 0;
             let mut caps_integrated = 0;
             let mut interior_pixels = 0;
+            let mut interior_direct = Default::default();
             for _ in 0..repeats.max(1) {
                 let t = Instant::now();
                 let stats = renderer.render_flux(&scene.body, &scene.state, &settings, None);
@@ -219,6 +222,7 @@ pub fn bench(
                 caps = stats.caps;
                 caps_integrated = stats.caps_integrated;
                 interior_pixels = stats.interior_pixels;
+                interior_direct = stats.interior_direct;
             }
             times.sort_by(f64::total_cmp);
             let stage_median_ms = stages.map(|mut v| {
@@ -243,6 +247,7 @@ pub fn bench(
                 node_spacing: spacing,
                 pixel_tolerance: tolerance,
                 interior_pixels,
+                interior_direct,
                 caps,
                 caps_integrated,
                 median_ms: percentile(&times, 0.5),

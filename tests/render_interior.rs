@@ -160,6 +160,23 @@ fn looser_pixel_tolerance_stays_within_its_bound() {
             "α={alpha}: the looser tolerance changed nothing"
         );
     }
+    // And it is what saves the time: fewer pixels take Gauss points.
+    let gauss_pixels = |tolerance: &str| {
+        let mut setup = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 0.0, 50.0, 160.0);
+        setup.extra_render = format!("pixel_tolerance = {tolerance}");
+        let scene = setup.scene();
+        let mut renderer = optistim::render::Renderer::new(scene.camera.pinhole.clone());
+        let d = renderer
+            .render_flux(&scene.body, &scene.state, &scene.render, None)
+            .interior_direct;
+        d.gauss2 + d.gauss4
+    };
+    let (tight, loose) = (gauss_pixels("1e-4"), gauss_pixels("1e-3"));
+    eprintln!("pixels with Gauss points: {tight} at 1e-4, {loose} at 1e-3");
+    assert!(
+        tight > 0 && 2 * loose < tight,
+        "{tight} at 1e-4, {loose} at 1e-3"
+    );
 }
 
 /// The node lattice (`[render] node_spacing`) against every pixel evaluated

@@ -164,9 +164,10 @@ impl InteriorMask {
     }
 
     /// Write the flux of every interior pixel into `flux` (the whole image,
-    /// row-major, `width` wide); returns their sum. With `node_spacing` > 1
-    /// the smooth factors come from the node lattice (`Lattice`) where
-    /// its stencil allows, else each pixel is evaluated directly.
+    /// row-major, `width` wide); returns their sum and how many were
+    /// evaluated directly. With `node_spacing` > 1 the smooth factors come
+    /// from the node lattice (`Lattice`) where its stencil allows, else
+    /// each pixel is evaluated directly.
     pub fn integrate(
         &mut self,
         frame: &Frame,
@@ -174,7 +175,7 @@ impl InteriorMask {
         flux: &mut [f32],
         width: usize,
         node_spacing: usize,
-    ) -> f64 {
+    ) -> (f64, DirectCounts) {
         let roi = self.roi;
         let w = roi.width();
         let lattice = (node_spacing > 1 && rays.lattice_applies(frame)).then(|| {
@@ -188,8 +189,9 @@ impl InteriorMask {
             .take(roi.height())
             .map(|(j, row)| {
                 let mask = &interior[(j - roi.y0) * w..(j - roi.y0 + 1) * w];
+                let mut counts = DirectCounts::default();
                 if !mask.iter().any(|&m| m) {
-                    return 0.0;
+                    return (0.0, counts);
                 }
                 // Per-thread scratch, kept between frames: no allocation
                 // in the frame loop once warm.
@@ -204,15 +206,58 @@ impl InteriorMask {
                             lattice.and_then(|l| l.factors_at(columns, ii).map(|q| (l, q)));
                         let f = match interpolated {
                             Some((l, q)) => l.pixel_flux(frame, q),
-                            None => rays.pixel_flux(frame, i, j),
+                            None => {
+                                let (f, points) = rays.pixel_flux(frame, i, j);
+                                counts.add(points);
+                                f
+                            }
                         };
                         row[i] = f as f32;
                         sum += f;
                     }
-                    sum
+                    (sum, counts)
                 })
             })
-            .sum()
+            .reduce(
+                || (0.0, DirectCounts::default()),
+                |(a, ca), (b, cb)| (a + b, ca.merged(cb)),
+            )
+    }
+}
+
+/// Interior pixels evaluated directly (not from the node lattice), by the
+/// points per axis of their quadrature: near the limb the midpoint rule
+/// gives way to 2×2 and 4×4 Gauss points (`[render] pixel_tolerance`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct DirectCounts {
+    /// One point (the pixel centre).
+    pub midpoint: usize,
+    /// 2×2 Gauss points.
+    pub gauss2: usize,
+    /// 4×4 Gauss points.
+    pub gauss4: usize,
+}
+
+impl DirectCounts {
+    /// Pixels evaluated directly.
+    pub fn total(&self) -> usize {
+        self.midpoint + self.gauss2 + self.gauss4
+    }
+
+    fn add(&mut self, points: usize) {
+        match points {
+            1 => self.midpoint += 1,
+            2 => self.gauss2 += 1,
+            _ => self.gauss4 += 1,
+        }
+    }
+
+    fn merged(self, o: DirectCounts) -> DirectCounts {
+        DirectCounts {
+            midpoint: self.midpoint + o.midpoint,
+            gauss2: self.gauss2 + o.gauss2,
+            gauss4: self.gauss4 + o.gauss4,
+        }
     }
 }
 
@@ -679,11 +724,11 @@ impl PixelRays {
     }
 
     /// Collected flux of interior pixel (i, j) per unit solar irradiance at
-    /// 1 au, evaluated directly.
-    fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> f64 {
+    /// 1 au, evaluated directly, and the quadrature's points per axis.
+    fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize) {
         let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
         let Some(s) = self.surface(u, v) else {
-            return 0.0;
+            return (0.0, 1);
         };
         let albedo = match &frame.body.albedo_map {
             None => frame.albedo,
@@ -691,7 +736,7 @@ impl PixelRays {
         };
         let midpoint = self.flux_at(frame, &s, albedo);
         if self.midpoint_suffices(&s) {
-            return midpoint;
+            return (midpoint, 1);
         }
         let to_limb = self.to_limb(&s);
         let gauss = |rule: &[(f64, f64)]| {
@@ -708,9 +753,9 @@ impl PixelRays {
         let two = gauss(&GAUSS2);
         let max_step = GAUSS2_MAX_STEP * self.tolerance;
         if to_limb >= GAUSS2_MIN_PX && (two - midpoint).abs() <= max_step * two.abs() {
-            two
+            (two, 2)
         } else {
-            gauss(&GAUSS4)
+            (gauss(&GAUSS4), 4)
         }
     }
 }

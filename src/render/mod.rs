@@ -164,6 +164,9 @@ pub struct RenderStats {
     pub phase_angle: f64,
     /// Pixels integrated per pixel (their preimage is the cap).
     pub interior_pixels: usize,
+    /// How many interior pixels were evaluated directly rather than
+    /// interpolated from the node lattice, by quadrature rule.
+    pub interior_direct: interior::DirectCounts,
     /// Pixels that may hold signal.
     #[serde(skip)]
     pub roi: Rect,
@@ -401,10 +404,12 @@ impl Renderer {
         let t_interior = Instant::now();
         stats.stages.caps = (t_interior - t_caps).as_secs_f64();
         if let Some(r) = &rays {
-            stats.total_flux +=
+            let (flux, direct) =
                 self.interior
                     .integrate(&frame, r, &mut self.flux, w, settings.node_spacing);
+            stats.total_flux += flux;
             stats.interior_pixels = self.interior.count();
+            stats.interior_direct = direct;
         }
         stats.stages.interior = t_interior.elapsed().as_secs_f64();
         self.dirty = roi;
