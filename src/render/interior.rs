@@ -239,11 +239,6 @@ pub struct DirectCounts {
 }
 
 impl DirectCounts {
-    /// Pixels evaluated directly.
-    pub fn total(&self) -> usize {
-        self.midpoint + self.gauss2 + self.gauss4
-    }
-
     fn add(&mut self, points: usize) {
         match points {
             1 => self.midpoint += 1,
