@@ -115,6 +115,15 @@ pub struct BenchSweep {
     pub pixel_tolerances: Vec<f64>,
 }
 
+/// The values given on the command line, or the scene's own when none.
+fn swept_or_scene<'a, T>(given: &'a [T], scene: &'a [T; 1]) -> &'a [T] {
+    if given.is_empty() {
+        scene
+    } else {
+        given
+    }
+}
+
 /// `optistim bench`: time against error for several densities, against the
 /// same renderer at 16× the highest linear... reference density.
 pub fn bench(
@@ -144,22 +153,10 @@ pub fn bench(
     let base = Scene::from_file(scene_path)?;
     let scene_samples = [base.render.texture_samples];
     let scene_spacing = [base.render.node_spacing];
-    let node_spacings = if node_spacings.is_empty() {
-        &scene_spacing[..]
-    } else {
-        node_spacings
-    };
     let scene_tolerance = [base.render.pixel_tolerance];
-    let pixel_tolerances = if pixel_tolerances.is_empty() {
-        &scene_tolerance[..]
-    } else {
-        pixel_tolerances
-    };
-    let texture_samples = if texture_samples.is_empty() {
-        &scene_samples[..]
-    } else {
-        texture_samples
-    };
+    let node_spacings = swept_or_scene(node_spacings, &scene_spacing);
+    let pixel_tolerances = swept_or_scene(pixel_tolerances, &scene_tolerance);
+    let texture_samples = swept_or_scene(texture_samples, &scene_samples);
     let pin = base.camera.pinhole.clone();
     let mut renderer = Renderer::new(pin.clone());
     let mut rows = Vec::new();
