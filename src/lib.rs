@@ -11,6 +11,7 @@
 //! | [`radiometry`] | how light is made and reflected: solar spectra, reflectance models, band integrals |
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
+//! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
 //!
 //! Conventions (SI units, OpenCV camera frame, scalar-first quaternions,
@@ -21,6 +22,7 @@
 
 pub mod error;
 pub mod facility;
+pub mod instruments;
 pub mod radiometry;
 pub mod render;
 pub mod scene;
