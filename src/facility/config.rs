@@ -347,13 +347,22 @@ impl Default for TimingConfig {
     }
 }
 
-fn positive(field: &str, v: f64) -> Result<()> {
-    if v.is_finite() && v > 0.0 {
+/// Largest screen side accepted, px (a 16K panel): bounds every buffer
+/// sized from `screen.resolution`.
+pub const MAX_SCREEN_SIDE: usize = 16_384;
+
+/// Largest frame-id cell, px: keeps the block's size far from overflow.
+pub const MAX_CELL_PX: usize = 256;
+
+/// `v` finite and in `[lo, hi]`: checked before any conversion (a
+/// `Duration` from 1e308 s panics; a rate of 1e-300 Hz is a 1e300 s period).
+fn in_range(field: &str, v: f64, lo: f64, hi: f64) -> Result<()> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
         Ok(())
     } else {
         Err(Error::invalid(
             field,
-            format!("must be finite and > 0, found {v}"),
+            format!("must be in [{lo:e}, {hi:e}], found {v:e}"),
         ))
     }
 }
@@ -404,8 +413,11 @@ impl FacilityConfig {
     /// Checks every value's domain; errors name the field.
     pub fn validate(&self) -> Result<()> {
         let s = &self.screen;
-        if s.resolution[0] == 0 || s.resolution[1] == 0 {
-            return Err(Error::invalid("screen.resolution", "must be non-zero"));
+        if s.resolution.iter().any(|&n| n == 0 || n > MAX_SCREEN_SIDE) {
+            return Err(Error::invalid(
+                "screen.resolution",
+                format!("each side must be in 1..={MAX_SCREEN_SIDE}"),
+            ));
         }
         if let MonitorSelect::Name(n) = &s.monitor {
             if n.trim().is_empty() {
@@ -415,8 +427,8 @@ impl FacilityConfig {
                 ));
             }
         }
-        positive("screen.pixel_pitch", s.pixel_pitch)?;
-        positive("screen.refresh_hz", s.refresh_hz)?;
+        in_range("screen.pixel_pitch", s.pixel_pitch, 1e-7, 1.0)?;
+        in_range("screen.refresh_hz", s.refresh_hz, 1.0, 1000.0)?;
         if !(1..=MAX_RENDER_BLOCK).contains(&s.render_block) {
             return Err(Error::invalid(
                 "screen.render_block",
@@ -426,21 +438,30 @@ impl FacilityConfig {
                 ),
             ));
         }
-        positive("collimator.focal_length", self.collimator.focal_length)?;
-        let t = self.collimator.transmission;
-        if !(t.is_finite() && t > 0.0 && t <= 1.0) {
-            return Err(Error::invalid(
-                "collimator.transmission",
-                format!("must be in (0, 1], found {t}"),
-            ));
-        }
+        in_range(
+            "collimator.focal_length",
+            self.collimator.focal_length,
+            1e-3,
+            1e3,
+        )?;
+        // Below 1e-6 the screen would need a million times the scene's
+        // radiance: no screen emits that, and the product overflows.
+        in_range(
+            "collimator.transmission",
+            self.collimator.transmission,
+            1e-6,
+            1.0,
+        )?;
         let a = &self.alignment;
-        if !(a.offset_px.iter().all(|v| v.is_finite())) {
-            return Err(Error::invalid("alignment.offset_px", "must be finite"));
+        for v in a.offset_px {
+            in_range("alignment.offset_px", v, -1e6, 1e6)?;
         }
-        if !a.rotation.is_finite() {
-            return Err(Error::invalid("alignment.rotation", "must be finite"));
-        }
+        in_range(
+            "alignment.rotation",
+            a.rotation,
+            -std::f64::consts::TAU,
+            std::f64::consts::TAU,
+        )?;
         if self.calibration.geometry.is_some() {
             let superseded = "must be absent or zero when calibration.geometry is given \
                               (the geometry file already holds the screen's placement)";
@@ -453,13 +474,13 @@ impl FacilityConfig {
         }
         let d = &self.drive;
         if let Some(k) = d.scale_k {
-            positive("drive.scale_k", k)?;
+            in_range("drive.scale_k", k, 1e-12, 1e12)?;
         }
         if let Some(v) = d.flight_exposure {
-            positive("drive.flight_exposure", v)?;
+            in_range("drive.flight_exposure", v, 1e-9, 1e4)?;
         }
         if let Some(v) = d.facility_exposure {
-            positive("drive.facility_exposure", v)?;
+            in_range("drive.facility_exposure", v, 1e-9, 1e4)?;
         }
         if d.scale_k.is_none() && (d.flight_exposure.is_some() != d.facility_exposure.is_some()) {
             let missing = if d.flight_exposure.is_none() {
@@ -486,8 +507,11 @@ impl FacilityConfig {
                 format!("must be 8 … 32, found {}", f.bits),
             ));
         }
-        if f.cell_px == 0 {
-            return Err(Error::invalid("frame_id.cell_px", "must be ≥ 1"));
+        if !(1..=MAX_CELL_PX).contains(&f.cell_px) {
+            return Err(Error::invalid(
+                "frame_id.cell_px",
+                format!("must be in 1..={MAX_CELL_PX}, found {}", f.cell_px),
+            ));
         }
         if f.enabled {
             let (w, h) = super::frame_id::FrameIdCode::block_size_for(f.bits, f.cell_px);
@@ -501,11 +525,16 @@ impl FacilityConfig {
         let y = &self.sync;
         super::serial::CommandTemplate::parse(&y.template)
             .map_err(|e| Error::invalid("sync.template", e.to_string()))?;
-        positive("sync.ack_timeout", y.ack_timeout)?;
-        if y.baud == 0 {
-            return Err(Error::invalid("sync.baud", "must be > 0"));
+        in_range("sync.ack_timeout", y.ack_timeout, 1e-4, 60.0)?;
+        if !(1..=10_000_000).contains(&y.baud) {
+            return Err(Error::invalid("sync.baud", "must be in 1..=10000000"));
         }
-        positive("timing.state_timeout", self.timing.state_timeout)?;
+        in_range(
+            "timing.state_timeout",
+            self.timing.state_timeout,
+            1e-3,
+            3600.0,
+        )?;
         if !(1..=120).contains(&self.timing.refreshes_per_frame) {
             return Err(Error::invalid(
                 "timing.refreshes_per_frame",
@@ -689,6 +718,77 @@ state_timeout = 0.25
         for (text, key) in cases {
             let m = e(text);
             assert!(m.contains("cfg/f.toml") && m.contains(key), "{key}: {m}");
+        }
+    }
+
+    /// The hostile values of the hardening issue: each is refused by name
+    /// before any `Duration` or buffer is built from it.
+    #[test]
+    fn extreme_values_are_refused_by_name() {
+        let cases = [
+            (
+                "refresh_hz = 60.0",
+                "refresh_hz = 1e-300",
+                "screen.refresh_hz",
+            ),
+            (
+                "refresh_hz = 60.0",
+                "refresh_hz = 1e308",
+                "screen.refresh_hz",
+            ),
+            (
+                "state_timeout = 0.25",
+                "state_timeout = 1e308",
+                "timing.state_timeout",
+            ),
+            (
+                "transmission = 0.85",
+                "transmission = 5e-324",
+                "collimator.transmission",
+            ),
+            (
+                "resolution = [1920, 1080]",
+                "resolution = [65536, 65536]",
+                "screen.resolution",
+            ),
+            ("rotation = 0.001", "rotation = 1e300", "alignment.rotation"),
+            (
+                "offset_px = [1.5, -2.0]",
+                "offset_px = [1e300, 0.0]",
+                "alignment.offset_px",
+            ),
+            (
+                "flight_exposure = 0.01",
+                "flight_exposure = 1e300",
+                "drive.flight_exposure",
+            ),
+        ];
+        for (from, to, key) in cases {
+            let text = GOOD.replace(from, to);
+            assert_ne!(text, GOOD, "{from} not in the template");
+            let m = FacilityConfig::parse(&text, "cfg/f.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(m.contains("cfg/f.toml") && m.contains(key), "{key}: {m}");
+        }
+        for (from, to, key) in [
+            (
+                "ack_timeout = 0.02",
+                "ack_timeout = 1e308",
+                "sync.ack_timeout",
+            ),
+            (
+                "cell_px = 3",
+                "cell_px = 4611686018427387904",
+                "frame_id.cell_px",
+            ),
+        ] {
+            let text = GOOD.replace(from, to);
+            assert_ne!(text, GOOD, "{from} not in the template");
+            let m = FacilityConfig::parse(&text, "f.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(m.contains(key), "{key}: {m}");
         }
     }
 

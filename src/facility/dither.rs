@@ -397,6 +397,12 @@ impl Converter {
                 format!("must be finite and > 0, found {k}"),
             ));
         }
+        if !(k / t).is_finite() {
+            return Err(Error::invalid(
+                "drive.scale_k",
+                format!("k ÷ collimator.transmission = {k:e} ÷ {t:e} overflows"),
+            ));
+        }
         if screen.0 == 0 || screen.1 == 0 {
             return Err(Error::invalid("screen.resolution", "must be non-zero"));
         }
@@ -1079,7 +1085,9 @@ impl PixelCtx<'_> {
     /// exact 0 (sky), or clipped.
     #[inline(always)]
     fn edge(&self, t: f64, l: f64, st: &mut ConvertStats) -> u32 {
-        if !t.is_finite() {
+        // A finite target can still overflow into a non-finite screen
+        // radiance (an extreme k or τ): black, counted, never a panic.
+        if !t.is_finite() || !l.is_finite() {
             st.non_finite += 1;
             return self.black_pixel;
         }
@@ -1094,7 +1102,10 @@ impl PixelCtx<'_> {
             }
             self.top_pixel
         } else {
-            unreachable!("screen radiance {l} is between two levels")
+            // Only reached if a caller routed an in-range pixel here; black
+            // is the safe answer in the render thread.
+            st.non_finite += 1;
+            self.black_pixel
         }
     }
 
@@ -1551,6 +1562,35 @@ mod tests {
         assert_eq!(st.clipped_high, 1); // 300 (256 is exactly max)
         assert_eq!(st.non_finite, 2);
         assert_eq!(st.peak_target, 300.0);
+    }
+
+    /// An extreme k ÷ τ is refused up front; a target that still
+    /// overflows f64 on the way is black and counted, never a panic in the
+    /// render thread.
+    #[test]
+    fn overflowing_scale_is_refused_or_black() {
+        let make = |transmission: f64, scale_k: f64| {
+            let settings = ConvertSettings {
+                transmission,
+                scale_k,
+                ..ConvertSettings::default()
+            };
+            let bayer = ThresholdMatrix::bayer(4).unwrap();
+            Converter::new(linear_lut(), None, bayer, settings, (4, 1))
+        };
+        let e = make(5e-324, 1e308).unwrap_err().to_string();
+        assert!(
+            e.contains("drive.scale_k") && e.contains("overflows"),
+            "{e}"
+        );
+        let mut c = make(1e-10, 1e290).unwrap();
+        let target = [0.0, 1e-40, 3e38, f32::MAX];
+        let mut frame = vec![0; 4];
+        let st = c.convert(&target, Roi::full(4, 1), 0, &mut frame).unwrap();
+        let got: Vec<u32> = frame.iter().map(|&p| decode_grey(p, 8)).collect();
+        // 1e-40 × 1e300 is finite and above the top; 3e38 × 1e300 is inf.
+        assert_eq!(got, vec![0, 255, 0, 0]);
+        assert_eq!((st.clipped_high, st.non_finite), (1, 2), "{st:?}");
     }
 
     #[test]

@@ -73,7 +73,11 @@ pub struct FrameIdCode {
 impl FrameIdCode {
     /// Block size in pixels `(width, height)` for `bits` and `cell_px`.
     pub fn block_size_for(bits: u32, cell_px: usize) -> (usize, usize) {
-        ((bits as usize + 7) * cell_px, 3 * cell_px)
+        // Saturating: an absurd cell size must fail the fit check, not wrap.
+        (
+            (bits as usize + 7).saturating_mul(cell_px),
+            3usize.saturating_mul(cell_px),
+        )
     }
 
     /// New code for a `screen = (width, height)` display.
