@@ -23,6 +23,7 @@
 pub mod error;
 pub mod facility;
 pub mod instruments;
+pub mod outfile;
 pub mod radiometry;
 pub mod render;
 pub mod scene;

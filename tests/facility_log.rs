@@ -81,3 +81,40 @@ fn records_survive_a_crash_and_logs_are_appended() {
     );
     assert!((recs[3].t_presented - recs[3].t_state_received.unwrap() - 0.005).abs() < 1e-9);
 }
+
+/// A record torn by a full disk: the next run starts a new line, so no
+/// later record is glued onto it and every whole record reads back.
+#[test]
+fn a_torn_record_does_not_swallow_the_next_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("frames.jsonl");
+    let start = Instant::now();
+    let mut log = FrameLog::open(&path, start).unwrap();
+    for f in 0..2 {
+        let r = record(&log, f, start);
+        log.write(r).unwrap();
+    }
+    drop(log);
+    let whole = std::fs::read_to_string(&path).unwrap();
+    let torn = &whole.lines().next().unwrap()[..40];
+    std::fs::write(&path, format!("{whole}{torn}")).unwrap();
+
+    let mut log = FrameLog::open(&path, start).unwrap();
+    for f in 7..9 {
+        let r = record(&log, f, start);
+        log.write(r).unwrap();
+    }
+    drop(log);
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert_eq!(
+        text.lines().nth(2),
+        Some(torn),
+        "the torn record on its own line"
+    );
+    let frames: Vec<u64> = read_records(&path)
+        .unwrap()
+        .iter()
+        .map(|r| r.frame)
+        .collect();
+    assert_eq!(frames, vec![0, 1, 7, 8]);
+}

@@ -22,7 +22,13 @@
 //! state-received → presented latency p50/p99/max (nearest-rank
 //! percentiles from a fixed-memory [`LatencyHistogram`]), written as pretty JSON by [`FrameLog::write_summary`]
 //! (atomically: temp file + rename; the summary is derived data and may
-//! replace an older one).
+//! replace an older regular file, never a symlink, device or directory).
+//!
+//! # Torn records
+//!
+//! A record cut short (disk full, power loss) leaves the file without a
+//! final newline; the next run's [`FrameLog::open`] starts a new line
+//! first and warns, so its first record is not glued onto the torn one.
 
 use std::fs::{File, OpenOptions};
 use std::io::Write;
@@ -229,6 +235,18 @@ pub struct Summary {
     pub preflight_render: Option<f64>,
 }
 
+/// True when `file` is non-empty and its last byte is not a newline.
+fn ends_torn(file: &mut File) -> std::io::Result<bool> {
+    use std::io::{Read, Seek, SeekFrom};
+    if file.metadata()?.len() == 0 {
+        return Ok(false);
+    }
+    file.seek(SeekFrom::End(-1))?;
+    let mut last = [0u8; 1];
+    file.read_exact(&mut last)?;
+    Ok(last[0] != b'\n')
+}
+
 /// Append-only, write-through frame log.
 #[derive(Debug)]
 pub struct FrameLog {
@@ -247,11 +265,20 @@ impl FrameLog {
     /// Opens (creating or appending to) `path`; `run_start` is time zero.
     pub fn open(path: impl AsRef<Path>, run_start: Instant) -> Result<FrameLog> {
         let path = path.as_ref();
-        let file = OpenOptions::new()
+        crate::outfile::check_appendable(path)?;
+        let mut file = OpenOptions::new()
             .create(true)
             .append(true)
+            .read(true)
             .open(path)
             .map_err(|e| Error::io(path, e))?;
+        if ends_torn(&mut file).map_err(|e| Error::io(path, e))? {
+            tracing::warn!(
+                "{}: the last record is torn (no final newline); starting a new line",
+                path.display()
+            );
+            file.write_all(b"\n").map_err(|e| Error::io(path, e))?;
+        }
         let run = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_nanos().to_string())
@@ -334,15 +361,15 @@ impl FrameLog {
         let s = self.summary();
         let text = serde_json::to_string_pretty(&s)
             .map_err(|e| Error::Other(format!("summary not serialisable: {e}")))?;
-        let tmp = path.with_extension("json.tmp");
-        std::fs::write(&tmp, text + "\n").map_err(|e| Error::io(&tmp, e))?;
-        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))?;
+        crate::outfile::write_atomic(path, (text + "\n").as_bytes())?;
         Ok(s)
     }
 }
 
 /// Reads a frame log. An unterminated last line (crash mid-write) is
-/// ignored; any other bad line is an error naming the line.
+/// ignored, and so is a torn record that a later run closed with a newline
+/// (a `{` line that does not end in `}`); any other bad line is an error
+/// naming the line.
 pub fn read_records(path: impl AsRef<Path>) -> Result<Vec<FrameRecord>> {
     let path = path.as_ref();
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
@@ -353,11 +380,17 @@ pub fn read_records(path: impl AsRef<Path>) -> Result<Vec<FrameRecord>> {
     complete
         .lines()
         .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
+        .filter(|(_, l)| !l.trim().is_empty() && !is_torn(l))
         .map(|(i, l)| {
             serde_json::from_str(l).map_err(|e| Error::parse(path, format!("line {}: {e}", i + 1)))
         })
         .collect()
+}
+
+/// A record cut short: begun as an object but not closed.
+fn is_torn(line: &str) -> bool {
+    let l = line.trim();
+    l.starts_with('{') && !l.ends_with('}')
 }
 
 #[cfg(test)]

@@ -1,0 +1,133 @@
+//! Output files that never clobber what they should not: a summary or
+//! report is replaced atomically (temporary file + rename) only when the
+//! path is absent or a regular file, so a symlink, a device node such as
+//! `/dev/null` or a directory at that path is refused with a message
+//! instead of being replaced (as root a rename over `/dev/null` makes it a
+//! regular file).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+
+/// What `path` is, when it is something an output must not replace.
+fn unsafe_kind(meta: &std::fs::Metadata) -> Option<&'static str> {
+    let t = meta.file_type();
+    if t.is_symlink() {
+        Some("a symbolic link")
+    } else if t.is_dir() {
+        Some("a directory")
+    } else if !t.is_file() {
+        Some("not a regular file (a device, FIFO or socket)")
+    } else {
+        None
+    }
+}
+
+/// Ok when `path` is absent or a regular file (not followed through a
+/// symlink); otherwise an error naming the path and what it is.
+pub fn check_replaceable(path: &Path) -> Result<()> {
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(Error::io(path, e)),
+        Ok(meta) => match unsafe_kind(&meta) {
+            None => Ok(()),
+            Some(kind) => Err(Error::invalid(
+                path.display().to_string(),
+                format!("refusing to replace it: it is {kind}"),
+            )),
+        },
+    }
+}
+
+/// Ok when `path` is absent or, following symlinks, a regular file: what
+/// an append-only log may write through.
+pub fn check_appendable(path: &Path) -> Result<()> {
+    match std::fs::metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(Error::io(path, e)),
+        Ok(meta) if meta.is_file() => Ok(()),
+        Ok(meta) => Err(Error::invalid(
+            path.display().to_string(),
+            format!(
+                "refusing to write to it: it is {}",
+                unsafe_kind(&meta).unwrap_or("not a regular file")
+            ),
+        )),
+    }
+}
+
+/// Temporary sibling of `path`, unique to this process.
+fn temporary_for(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Replaces `path` with `bytes` atomically, after [`check_replaceable`]:
+/// readers see the old file or the whole new one, never a part.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    check_replaceable(path)?;
+    let tmp = temporary_for(path);
+    let written = std::fs::File::create(&tmp)
+        .and_then(|mut f| f.write_all(bytes).and_then(|()| f.sync_all()));
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(&tmp, e));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn replaces_regular_files_and_refuses_the_rest() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("s.json");
+        write_atomic(&file, b"one").unwrap();
+        write_atomic(&file, b"two").unwrap();
+        assert_eq!(std::fs::read(&file).unwrap(), b"two");
+
+        let link = dir.path().join("link.json");
+        std::os::unix::fs::symlink(&file, &link).unwrap();
+        let e = write_atomic(&link, b"x").unwrap_err().to_string();
+        assert!(
+            e.contains("symbolic link") && e.contains("link.json"),
+            "{e}"
+        );
+        assert_eq!(std::fs::read(&file).unwrap(), b"two", "target untouched");
+
+        let e = write_atomic(dir.path(), b"x").unwrap_err().to_string();
+        assert!(e.contains("directory"), "{e}");
+        let e = write_atomic(Path::new("/dev/null"), b"x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        assert!(!std::fs::metadata("/dev/null").unwrap().is_file());
+        let leftovers = std::fs::read_dir(dir.path()).unwrap().count();
+        assert_eq!(leftovers, 2, "no temporary file left behind");
+    }
+
+    #[test]
+    fn appends_through_links_to_regular_files_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("log.jsonl");
+        check_appendable(&file).unwrap();
+        std::fs::write(&file, "").unwrap();
+        let link = dir.path().join("link");
+        std::os::unix::fs::symlink(&file, &link).unwrap();
+        check_appendable(&link).unwrap();
+        let e = check_appendable(Path::new("/dev/null"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("/dev/null"), "{e}");
+        assert!(check_appendable(dir.path()).is_err());
+    }
+}
