@@ -22,6 +22,7 @@
 
 pub mod error;
 pub mod facility;
+pub mod infile;
 pub mod instruments;
 pub mod outfile;
 pub mod radiometry;

@@ -243,3 +243,103 @@ binary \x00\x01 follows"#;
         .to_string();
     assert!(e.contains("truncated"), "{e}");
 }
+
+/// The real file with one label value replaced in place (same length, so
+/// the record count still matches).
+fn patched(dir: &std::path::Path, from: &str, to: &str) -> std::path::PathBuf {
+    let mut bytes = std::fs::read(IMG1).unwrap();
+    let at = bytes
+        .windows(from.len())
+        .position(|w| w == from.as_bytes())
+        .unwrap_or_else(|| panic!("`{from}` not in the label"));
+    // The label's lines are padded with spaces: those are room too.
+    let mut end = at + from.len();
+    while bytes[end] == b' ' {
+        end += 1;
+    }
+    assert!(to.len() <= end - at, "{to}");
+    let padded = format!("{to:<width$}", width = end - at);
+    bytes[at..end].copy_from_slice(padded.as_bytes());
+    let p = dir.join("patched.IMG");
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// Sizes and offsets near 2^62–2^64 from the label give an error naming the
+/// keyword, never a wrapped slice bound, a capacity overflow or a panic.
+#[test]
+fn hostile_sizes_name_the_keyword() {
+    let dir = tempfile::tempdir().unwrap();
+    let lines = "LINES                       = 512";
+    let cases = [
+        (lines, "LINES = 4611686018427387904", "LINES"),
+        (lines, "LINES = 9223372036854775807", "LINES"),
+        (
+            "LINE_SAMPLES                = 512",
+            "LINE_SAMPLES = 9223372036854775807",
+            "LINES",
+        ),
+        (
+            "^IMAGE                         = 36865 <BYTES>",
+            "^IMAGE = 18446744073709551615 <BYTES>",
+            "IMAGE",
+        ),
+        (
+            "^IMAGE                         = 36865 <BYTES>",
+            "^IMAGE = 18014398509481984",
+            "^IMAGE",
+        ),
+        (
+            "LABEL_RECORDS                  = 20",
+            "LABEL_RECORDS = 9223372036854775807",
+            "LABEL_RECORDS",
+        ),
+        (
+            "SCALING_FACTOR              = 0.015625",
+            "SCALING_FACTOR = 1e999",
+            "SCALING_FACTOR",
+        ),
+    ];
+    for (from, to, key) in cases {
+        let p = patched(dir.path(), from, to);
+        let e = read_image(&p).unwrap_err().to_string();
+        assert!(e.contains("patched.IMG") && e.contains(key), "{to}: {e}");
+    }
+    // The prefix of the second image object (the first LINE_PREFIX_BYTES is
+    // the browse image's, which read_image does not read).
+    let mut bytes = std::fs::read(IMG1).unwrap();
+    let text = String::from_utf8_lossy(&bytes[..20480]).into_owned();
+    let image_obj = text.find("OBJECT                         = IMAGE").unwrap();
+    let from = "LINE_PREFIX_BYTES           = 0";
+    if let Some(rel) = text[image_obj..].find(from) {
+        let at = image_obj + rel;
+        let to = format!("{:<w$}", "LINE_PREFIX_BYTES = -9", w = from.len());
+        bytes[at..at + from.len()].copy_from_slice(to.as_bytes());
+        let p = dir.path().join("prefix.IMG");
+        std::fs::write(&p, bytes).unwrap();
+        let e = read_image(&p).unwrap_err().to_string();
+        assert!(e.contains("LINE_PREFIX_BYTES"), "{e}");
+    }
+}
+
+/// Tens of thousands of nested parentheses: an error, not a stack overflow.
+#[test]
+fn deep_nesting_is_refused() {
+    for depth in [33, 50_000] {
+        let mut text = String::from("PDS_VERSION_ID = PDS3\nA = ");
+        text.push_str(&"(".repeat(depth));
+        text.push('1');
+        text.push_str(&")".repeat(depth));
+        text.push_str("\nEND\n");
+        let e = Label::parse(text.as_bytes(), "deep.lbl")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("deep.lbl") && e.contains("nested"), "{e}");
+    }
+    let ok = "PDS_VERSION_ID = PDS3\nA = ".to_string()
+        + &"(".repeat(8)
+        + "1"
+        + &")".repeat(8)
+        + "\nEND\n";
+    Label::parse(ok.as_bytes(), "ok.lbl").unwrap();
+}

@@ -372,7 +372,7 @@ impl FrameLog {
 /// naming the line.
 pub fn read_records(path: impl AsRef<Path>) -> Result<Vec<FrameRecord>> {
     let path = path.as_ref();
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::infile::read_text_bounded(path, crate::infile::DATA_LIMIT)?;
     let complete = match text.rfind('\n') {
         Some(i) => &text[..=i],
         None => "",

@@ -202,7 +202,7 @@ impl Label {
     /// Reads and parses the label at the start of `path`.
     pub fn read(path: impl AsRef<Path>) -> Result<Label> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let bytes = crate::infile::read_bounded(path, crate::infile::DATA_LIMIT)?;
         Self::parse(&bytes, path)
     }
 
@@ -213,6 +213,7 @@ impl Label {
             b: bytes,
             i: 0,
             path: path.as_ref().to_path_buf(),
+            depth: 0,
         }
         .label()
     }
@@ -248,7 +249,9 @@ impl Label {
                         if rb <= 0 {
                             return Err(root.err("RECORD_BYTES", "must be positive"));
                         }
-                        Ok((n - 1) * rb as u64)
+                        (n - 1).checked_mul(rb as u64).ok_or_else(|| {
+                            root.err(&key, format!("{n} records of {rb} bytes overflow"))
+                        })
                     }
                     Some(u) => Err(root.err(&key, format!("unsupported pointer unit <{u}>"))),
                 }
@@ -275,7 +278,13 @@ struct Parser<'a> {
     b: &'a [u8],
     i: usize,
     path: PathBuf,
+    /// Open `(`/`{` around the value being parsed (bounded: the parser
+    /// recurses once per level).
+    depth: usize,
 }
+
+/// Deepest sequence/set nesting accepted; real labels use two.
+const MAX_NESTING: usize = 32;
 
 impl Parser<'_> {
     fn line(&self) -> usize {
@@ -386,7 +395,13 @@ impl Parser<'_> {
             }
             Some(open @ (b'(' | b'{')) => {
                 let close = if open == b'(' { b')' } else { b'}' };
+                if self.depth >= MAX_NESTING {
+                    return Err(
+                        self.fail(format!("sequences nested deeper than {MAX_NESTING} levels"))
+                    );
+                }
                 self.i += 1;
+                self.depth += 1;
                 let mut items = Vec::new();
                 loop {
                     self.skip_ws()?;
@@ -412,6 +427,7 @@ impl Parser<'_> {
                         }
                     }
                 }
+                self.depth -= 1;
                 let unit = self.unit()?;
                 Ok(Value::Sequence { items, unit })
             }
@@ -577,12 +593,27 @@ pub struct Pds3Image {
 
 /// Reads the `IMAGE` object of an attached-label PDS3 file: unsigned 8- or
 /// 16-bit samples (LSB or MSB), with line prefix/suffix bytes skipped and
+/// A byte count that may be absent (0): non-negative and below 2^31.
+fn optional_count(img: &Group, key: &str) -> Result<u64> {
+    match img.find(key) {
+        None => Ok(0),
+        Some(_) => {
+            let v = img.i64(key)?;
+            if (0..1 << 31).contains(&v) {
+                Ok(v as u64)
+            } else {
+                Err(img.err(key, format!("must be in 0 … 2^31, found {v}")))
+            }
+        }
+    }
+}
+
 /// `SCALING_FACTOR`/`OFFSET` applied. Checks `FILE_RECORDS * RECORD_BYTES`
 /// against the file length for fixed-length records, and that the image
 /// lies inside the file.
 pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::infile::read_bounded(path, crate::infile::DATA_LIMIT)?;
     let label = Label::parse(&bytes, path)?;
     let root = &label.root;
 
@@ -601,7 +632,10 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
             )));
         }
         if let Ok(lr) = root.i64("LABEL_RECORDS") {
-            if (lr * rb) as usize > bytes.len() || (lr * rb) < label.label_len as i64 {
+            let label_bytes = lr.checked_mul(rb).filter(|&v| v >= 0);
+            if label_bytes
+                .is_none_or(|v| v as u64 > bytes.len() as u64 || v < label.label_len as i64)
+            {
                 return Err(root.err(
                     "LABEL_RECORDS",
                     format!(
@@ -634,16 +668,8 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
         16 => 2usize,
         b => return Err(img.err("SAMPLE_BITS", format!("unsupported {b} bits per sample"))),
     };
-    let prefix = img
-        .find("LINE_PREFIX_BYTES")
-        .map(|_| img.i64("LINE_PREFIX_BYTES"))
-        .transpose()?
-        .unwrap_or(0) as usize;
-    let suffix = img
-        .find("LINE_SUFFIX_BYTES")
-        .map(|_| img.i64("LINE_SUFFIX_BYTES"))
-        .transpose()?
-        .unwrap_or(0) as usize;
+    let prefix = optional_count(img, "LINE_PREFIX_BYTES")?;
+    let suffix = optional_count(img, "LINE_SUFFIX_BYTES")?;
     let scale = img
         .find("SCALING_FACTOR")
         .map(|_| img.f64("SCALING_FACTOR"))
@@ -655,16 +681,40 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
         .transpose()?
         .unwrap_or(0.0);
 
+    if !(scale.is_finite() && offset.is_finite()) {
+        return Err(img.err("SCALING_FACTOR", "SCALING_FACTOR and OFFSET must be finite"));
+    }
     let (w, h) = (samples as usize, lines as usize);
-    let start = label.pointer("IMAGE")? as usize;
-    let line_bytes = prefix + w * bps + suffix;
-    let end = start + h * line_bytes;
-    if end > bytes.len() {
+    let start = label.pointer("IMAGE")?;
+    if start >= bytes.len() as u64 {
+        return Err(root.err(
+            "^IMAGE",
+            format!("byte {start} is past the end of the {}-byte file", bytes.len()),
+        ));
+    }
+    // Every size comes from the label: checked, so a value near 2^63 is an
+    // error rather than a wrapped slice bound.
+    let line_bytes = (w as u64)
+        .checked_mul(bps as u64)
+        .and_then(|v| v.checked_add(prefix))
+        .and_then(|v| v.checked_add(suffix));
+    let end = line_bytes
+        .and_then(|l| l.checked_mul(h as u64))
+        .and_then(|v| v.checked_add(start));
+    let (Some(line_bytes), Some(end)) = (line_bytes, end) else {
+        return Err(img.err(
+            "LINES",
+            format!("a {w}x{h} image at byte {start} overflows"),
+        ));
+    };
+    if end > bytes.len() as u64 {
         return Err(Error::parse(path, format!(
             "IMAGE ({w}x{h}, {bits}-bit) at byte {start} needs {end} bytes, the file has {} (truncated?)",
             bytes.len()
         )));
     }
+    // Inside the file now, so these fit in usize.
+    let (start, line_bytes, prefix) = (start as usize, line_bytes as usize, prefix as usize);
     let mut raw = Vec::with_capacity(w * h);
     for r in 0..h {
         let row =
