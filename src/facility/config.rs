@@ -372,7 +372,7 @@ impl FacilityConfig {
     /// and validates.
     pub fn load(path: impl AsRef<Path>) -> Result<FacilityConfig> {
         let path = path.as_ref();
-        let text = crate::infile::read_text_bounded(path.as_ref(), crate::infile::CONFIG_LIMIT)?;
+        let text = crate::infile::read_text_bounded(path, crate::infile::CONFIG_LIMIT)?;
         let mut cfg = FacilityConfig::parse(&text, path)?;
         let dir = path.parent().unwrap_or(Path::new(""));
         cfg.resolve_paths(dir);

@@ -159,7 +159,7 @@ impl GeometryCalibration {
     /// Reads and validates the geometry file of a `screen = (w, h)` screen.
     pub fn load(path: impl AsRef<Path>, screen: (usize, usize)) -> Result<GeometryCalibration> {
         let path = path.as_ref();
-        let bytes = crate::infile::read_bounded(path.as_ref(), crate::infile::TABLE_LIMIT)?;
+        let bytes = crate::infile::read_bounded(path, crate::infile::TABLE_LIMIT)?;
         GeometryCalibration::from_csv_bytes(&bytes, path, screen)
     }
 

@@ -155,7 +155,7 @@ impl DisplayLut {
     /// Reads a LUT file for a display of `bits` (8 or 10) bits per channel.
     pub fn load(path: impl AsRef<Path>, bits: u32) -> Result<DisplayLut> {
         let path = path.as_ref();
-        let bytes = crate::infile::read_bounded(path.as_ref(), crate::infile::TABLE_LIMIT)?;
+        let bytes = crate::infile::read_bounded(path, crate::infile::TABLE_LIMIT)?;
         DisplayLut::from_csv_bytes(&bytes, path, bits)
     }
 
@@ -505,7 +505,7 @@ impl FlatField {
     /// Reads a Gray32Float TIFF that must be exactly `screen = (width, height)`.
     pub fn load(path: impl AsRef<Path>, screen: (usize, usize)) -> Result<FlatField> {
         let path = path.as_ref();
-        let bytes = crate::infile::read_bounded(path.as_ref(), crate::infile::TABLE_LIMIT)?;
+        let bytes = crate::infile::read_bounded(path, crate::infile::TABLE_LIMIT)?;
         let terr = |e: tiff::TiffError| Error::parse(path, format!("TIFF: {e}"));
         let mut dec = tiff::decoder::Decoder::new(std::io::Cursor::new(&bytes)).map_err(terr)?;
         let (w, h) = dec.dimensions().map_err(terr)?;

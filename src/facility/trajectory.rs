@@ -273,7 +273,7 @@ impl Trajectory {
     /// Reads and validates a CSV trajectory file.
     pub fn load(path: impl AsRef<Path>) -> Result<Trajectory> {
         let path = path.as_ref();
-        let text = crate::infile::read_text_bounded(path.as_ref(), crate::infile::DATA_LIMIT)?;
+        let text = crate::infile::read_text_bounded(path, crate::infile::DATA_LIMIT)?;
         Trajectory::parse(&text, path)
     }
 

@@ -689,7 +689,10 @@ pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
     if start >= bytes.len() as u64 {
         return Err(root.err(
             "^IMAGE",
-            format!("byte {start} is past the end of the {}-byte file", bytes.len()),
+            format!(
+                "byte {start} is past the end of the {}-byte file",
+                bytes.len()
+            ),
         ));
     }
     // Every size comes from the label: checked, so a value near 2^63 is an
