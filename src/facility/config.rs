@@ -523,8 +523,8 @@ impl FacilityConfig {
             }
         }
         let y = &self.sync;
-        super::serial::CommandTemplate::parse(&y.template)
-            .map_err(|e| Error::invalid("sync.template", e.to_string()))?;
+        // Its errors already name `sync.template`.
+        super::serial::CommandTemplate::parse(&y.template)?;
         in_range("sync.ack_timeout", y.ack_timeout, 1e-4, 60.0)?;
         if !(1..=10_000_000).contains(&y.baud) {
             return Err(Error::invalid("sync.baud", "must be in 1..=10000000"));
@@ -718,6 +718,11 @@ state_timeout = 0.25
         for (text, key) in cases {
             let m = e(text);
             assert!(m.contains("cfg/f.toml") && m.contains(key), "{key}: {m}");
+            assert_eq!(
+                m.matches(&format!("`{key}`")).count().min(1),
+                m.matches(&format!("`{key}`")).count(),
+                "{key} named once: {m}"
+            );
         }
     }
 
