@@ -22,6 +22,7 @@
 
 pub mod error;
 pub mod facility;
+pub mod fuzzing;
 pub mod infile;
 pub mod instruments;
 pub mod outfile;

@@ -1,0 +1,66 @@
+//! Long-run fuzzing of every parser on stable Rust: N mutated inputs per
+//! parser (default 100 000), each run under `catch_unwind`; inputs that
+//! panic or take longer than a second are written to `out/fuzz/`. The
+//! property tests (`tests/fuzz_parsers.rs`) run the same targets briefly.
+//!
+//!     cargo run --release --example fuzz_parsers -- 1000000 [SEED] [TARGET]
+
+use std::time::{Duration, Instant};
+
+use optistim::fuzzing::{mutate, Rng, Target};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let n: u64 = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(100_000);
+    let seed: u64 = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(1);
+    let only = args.get(3).cloned();
+    let out = std::path::Path::new("out/fuzz");
+    std::fs::create_dir_all(out).expect("out/fuzz");
+    let scratch = tempfile::tempdir().expect("scratch dir");
+    std::panic::set_hook(Box::new(|_| {}));
+    println!("| parser | inputs | accepted | panics | slow (> 1 s) | max ms | wall s |");
+    println!("|---|---|---|---|---|---|---|");
+    for t in Target::ALL {
+        if only.as_deref().is_some_and(|o| o != t.name()) {
+            continue;
+        }
+        let seeds = t.seeds();
+        let mut rng = Rng::new(seed);
+        let (mut accepted, mut panics, mut slow, mut max) = (0u64, 0u64, 0u64, Duration::ZERO);
+        let start = Instant::now();
+        let mut corpus = seeds.clone();
+        for i in 0..n {
+            let base = &corpus[rng.below(corpus.len())];
+            let input = mutate(base, &mut rng);
+            let t0 = Instant::now();
+            let result = std::panic::catch_unwind(|| t.run(&input, scratch.path()));
+            let dt = t0.elapsed();
+            max = max.max(dt);
+            match result {
+                Ok(ok) => {
+                    if ok {
+                        accepted += 1;
+                        // Accepted mutants widen the search, boundedly.
+                        if corpus.len() < 64 {
+                            corpus.push(input.clone());
+                        }
+                    }
+                }
+                Err(_) => {
+                    panics += 1;
+                    let _ = std::fs::write(out.join(format!("{}-panic-{i}", t.name())), &input);
+                }
+            }
+            if dt > Duration::from_secs(1) {
+                slow += 1;
+                let _ = std::fs::write(out.join(format!("{}-slow-{i}", t.name())), &input);
+            }
+        }
+        println!(
+            "| {} | {n} | {accepted} | {panics} | {slow} | {:.1} | {:.0} |",
+            t.name(),
+            max.as_secs_f64() * 1e3,
+            start.elapsed().as_secs_f64()
+        );
+    }
+}

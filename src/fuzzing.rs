@@ -1,0 +1,228 @@
+//! Fuzzing entry points: every parser of user input behind one function
+//! that takes arbitrary bytes, the real files that seed mutation, and a
+//! small deterministic mutator. Used by the property tests
+//! (`tests/fuzz_parsers.rs`, a modest case count in `cargo test`) and by
+//! the long-run harness (`cargo run --release --example fuzz_parsers`),
+//! which runs on stable Rust with no extra tooling.
+//!
+//! The contract checked: a parser returns `Ok` or an error; it never
+//! panics, never hangs and never allocates beyond a stated bound.
+
+use std::path::Path;
+
+/// The parsers exercised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Target {
+    FacilityToml,
+    SceneToml,
+    Trajectory,
+    Lut,
+    Geometry,
+    Spectrum,
+    Pds3Label,
+    Pds3Image,
+    UdpDatagram,
+    SyncTemplate,
+}
+
+impl Target {
+    /// Every target.
+    pub const ALL: [Target; 10] = [
+        Target::FacilityToml,
+        Target::SceneToml,
+        Target::Trajectory,
+        Target::Lut,
+        Target::Geometry,
+        Target::Spectrum,
+        Target::Pds3Label,
+        Target::Pds3Image,
+        Target::UdpDatagram,
+        Target::SyncTemplate,
+    ];
+
+    /// Short name for reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Target::FacilityToml => "facility_toml",
+            Target::SceneToml => "scene_toml",
+            Target::Trajectory => "trajectory_csv",
+            Target::Lut => "lut_csv",
+            Target::Geometry => "geometry_csv",
+            Target::Spectrum => "spectrum_csv",
+            Target::Pds3Label => "pds3_label",
+            Target::Pds3Image => "pds3_image",
+            Target::UdpDatagram => "udp_datagram",
+            Target::SyncTemplate => "sync_template",
+        }
+    }
+
+    /// Real inputs to start mutation from (the bundled files).
+    pub fn seeds(self) -> Vec<Vec<u8>> {
+        let s = |b: &[u8]| b.to_vec();
+        match self {
+            Target::FacilityToml => vec![
+                s(include_bytes!("../configs/facility.toml")),
+                s(include_bytes!("../configs/facility_warped.toml")),
+            ],
+            Target::SceneToml => vec![
+                s(include_bytes!("../configs/moon.toml")),
+                s(include_bytes!("../configs/mars.toml")),
+            ],
+            Target::Trajectory => vec![head(include_bytes!("../configs/moon_approach.csv"), 12)],
+            Target::Lut => vec![s(include_bytes!("../calib/example_lut.csv"))],
+            Target::Geometry => vec![s(GEOMETRY_SEED.as_bytes())],
+            Target::Spectrum => vec![head(include_bytes!("../data/solar/astm_e490_am0.csv"), 40)],
+            Target::Pds3Label | Target::Pds3Image => vec![s(include_bytes!(
+                "../data/amie/AMI_EE3_041028_00101_00010.IMG"
+            ))],
+            Target::UdpDatagram => vec![
+                s(b"1.5,0,0,-4e8,1,0,0,0,1.3e11,0,-7.5e10,0,0,0,0.5,0.5,0.5,-0.5\n"),
+                s(br#"{"t":1.0,"camera_position":[0,0,-1e7],"camera_attitude":[1,0,0,0],"sun_position":[1.5e11,0,0]}"#),
+            ],
+            Target::SyncTemplate => vec![s(b"FRAME {id} {t} {exposure_us}\n")],
+        }
+    }
+
+    /// Feeds `bytes` to the parser; `scratch` is a directory for the
+    /// parsers that read files. Returns whether the input was accepted.
+    pub fn run(self, bytes: &[u8], scratch: &Path) -> bool {
+        use crate::facility as f;
+        let text = String::from_utf8_lossy(bytes);
+        let name = Path::new("fuzz.input");
+        match self {
+            Target::FacilityToml => f::config::FacilityConfig::parse(&text, name).is_ok(),
+            Target::SceneToml => {
+                crate::scene::Scene::from_toml(&text, &scratch.join("scene.toml")).is_ok()
+            }
+            Target::Trajectory => f::trajectory::Trajectory::parse(&text, name).is_ok(),
+            Target::Lut => f::lut::DisplayLut::from_csv_bytes(bytes, name, 8).is_ok(),
+            Target::Geometry => {
+                f::geometry::GeometryCalibration::from_csv_bytes(bytes, name, (64, 32)).is_ok()
+            }
+            Target::Spectrum => {
+                let p = scratch.join("spectrum.csv");
+                std::fs::write(&p, bytes).is_ok()
+                    && crate::radiometry::spectrum::Table::from_csv(&p).is_ok()
+            }
+            Target::Pds3Label => crate::validate::pds3::Label::parse(bytes, name).is_ok(),
+            Target::Pds3Image => {
+                let p = scratch.join("image.IMG");
+                std::fs::write(&p, bytes).is_ok() && crate::validate::pds3::read_image(&p).is_ok()
+            }
+            Target::UdpDatagram => f::udp::parse_datagram(bytes).is_ok(),
+            Target::SyncTemplate => f::serial::CommandTemplate::parse(&text).is_ok(),
+        }
+    }
+}
+
+/// A 3×3-node geometry lattice over a 64×32 screen.
+const GEOMETRY_SEED: &str = "u_px,v_px,tan_x,tan_y\n\
+0,0,-0.01,-0.005\n32,0,0,-0.005\n64,0,0.01,-0.005\n\
+0,16,-0.01,0\n32,16,0,0\n64,16,0.01,0\n\
+0,32,-0.01,0.005\n32,32,0,0.005\n64,32,0.01,0.005\n";
+
+/// The first `n` lines of `bytes`.
+fn head(bytes: &[u8], n: usize) -> Vec<u8> {
+    let mut end = 0;
+    for _ in 0..n {
+        match bytes[end..].iter().position(|&b| b == b'\n') {
+            Some(p) => end += p + 1,
+            None => return bytes.to_vec(),
+        }
+    }
+    bytes[..end].to_vec()
+}
+
+/// Tokens that have broken parsers before: extreme numbers, nesting,
+/// encodings, separators.
+const TOKENS: &[&str] = &[
+    "1e308",
+    "-1e308",
+    "1e-300",
+    "5e-324",
+    "nan",
+    "inf",
+    "-0",
+    "0",
+    "-1",
+    "18446744073709551616",
+    "9223372036854775807",
+    "4611686018427387904",
+    "((((((((((",
+    "}}}}",
+    "\u{feff}",
+    "\r\n",
+    "\"",
+    "'",
+    ",,,,",
+    "=",
+    "[",
+    "]",
+    "{",
+    "}",
+    "<BYTES>",
+    "END",
+    "OBJECT = IMAGE",
+    "\0",
+    "é",
+    "#",
+];
+
+/// xorshift64*: reproducible from a seed, no dependency.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+
+    pub fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+
+    /// Uniform in `0..n` (n > 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+}
+
+/// One to four random edits of `input`: byte flips, token insertions and
+/// replacements, deletions and duplications of ranges.
+pub fn mutate(input: &[u8], rng: &mut Rng) -> Vec<u8> {
+    let mut out = input.to_vec();
+    for _ in 0..1 + rng.below(4) {
+        let len = out.len().max(1);
+        let at = rng.below(len).min(out.len());
+        match rng.below(6) {
+            0 if !out.is_empty() => {
+                let i = rng.below(out.len());
+                out[i] ^= 1 << rng.below(8);
+            }
+            1 => {
+                let t = TOKENS[rng.below(TOKENS.len())].as_bytes();
+                out.splice(at..at, t.iter().copied());
+            }
+            2 => {
+                // Replace a number-like run with a token.
+                let end = (at + 1 + rng.below(24)).min(out.len());
+                let t = TOKENS[rng.below(TOKENS.len())].as_bytes();
+                out.splice(at..end, t.iter().copied());
+            }
+            3 => {
+                let end = (at + rng.below(64)).min(out.len());
+                out.drain(at..end);
+            }
+            4 => {
+                let end = (at + rng.below(256)).min(out.len());
+                let piece = out[at..end].to_vec();
+                out.splice(at..at, piece);
+            }
+            _ => out.truncate(at),
+        }
+    }
+    out
+}
