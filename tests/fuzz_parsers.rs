@@ -51,10 +51,10 @@ fn check(target: Target, input: &[u8]) {
 fn seeds_parse() {
     let dir = tempfile::tempdir().unwrap();
     for t in Target::ALL {
-        for seed in t.seeds() {
-            // The scene's maps are not in the scratch directory.
-            if t != Target::SceneToml {
-                assert!(t.run(&seed, dir.path()), "{} seed rejected", t.name());
+        for (i, seed) in t.seeds().iter().enumerate() {
+            // The bundled scenes' maps are not in the scratch directory.
+            if t != Target::SceneToml || i == 0 {
+                assert!(t.run(seed, dir.path()), "{} seed {i} rejected", t.name());
             }
         }
     }
