@@ -18,7 +18,7 @@ use optistim::facility::config::FacilityConfig;
 use optistim::facility::display::SimDisplay;
 use optistim::facility::dither::Roi;
 use optistim::facility::driver::{self, RunPlan, ScreenModel, StateSource};
-use optistim::facility::geometry::{GeometryCalibration, TILE};
+use optistim::facility::geometry::{GeometryCalibration, MAX_IDEAL_GRID_RATIO, TILE};
 use optistim::facility::log::{read_records, Summary};
 use optistim::facility::serial::SimSync;
 use optistim::facility::trajectory::Trajectory;
@@ -856,4 +856,43 @@ fn cli_runs_the_bundled_warped_facility() {
     assert!(records
         .iter()
         .all(|r| r.geometry_sha256.as_deref() == Some(sha.as_str()) && r.peak_radiance > 0.0));
+}
+
+/// One node moved almost onto its neighbour: the map does not fold, but its
+/// finest local scale would make the pre-warp's ideal grid explode (14 GB in
+/// the hardening report). Refused by name, before any allocation.
+#[test]
+fn a_node_off_the_smooth_map_is_refused_before_the_prewarp_allocates() {
+    let (w, h) = (64, 48);
+    let model = pinhole_model(w, h, 100.0, [0.0, 0.0], 0.0);
+    let moved = |squeeze: f64| {
+        geometry_csv(w, h, 16, |u, v| {
+            let mut t = model(u, v);
+            if (u, v) == (32.0, 16.0) {
+                // Toward the node at u = 16: the cells between shrink.
+                t[0] -= squeeze * 16.0 / 100.0;
+            }
+            t
+        })
+    };
+    // Moved a little: accepted, and the grid the pre-warp builds stays
+    // within the stated bound.
+    let csv = moved(0.3);
+    let cal = GeometryCalibration::from_csv_bytes(csv.as_bytes(), "g.csv", (w, h)).unwrap();
+    let ideal = optistim::facility::geometry::PreWarp::new(&cal)
+        .ideal_pinhole()
+        .clone();
+    let ratio = (ideal.width * ideal.height) as f64 / (w * h) as f64;
+    assert!(ratio <= MAX_IDEAL_GRID_RATIO, "{ratio}");
+    // Moved further (34× to 717× the screen, no fold): refused by name.
+    for squeeze in [0.6, 0.65, 0.7] {
+        let csv = moved(squeeze);
+        let e = GeometryCalibration::from_csv_bytes(csv.as_bytes(), "g.csv", (w, h))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("g.csv") && e.contains("pre-warp grid"),
+            "{squeeze}: {e}"
+        );
+    }
 }

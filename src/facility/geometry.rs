@@ -358,6 +358,7 @@ impl GeometryCalibration {
             }
         }
         cal.finest_scale = finest;
+        check_ideal_grid(&cal).map_err(|m| Error::parse(path, m))?;
         Ok(cal)
     }
 
@@ -471,6 +472,37 @@ pub struct PreWarp {
     /// Ideal radiance, zero outside `dirty`.
     radiance: Vec<f32>,
     dirty: Option<Roi>,
+}
+
+/// Largest ideal grid the pre-warp may build, in multiples of the screen's
+/// pixels: a smooth map needs about 1–2 (its scale varies by a few per
+/// cent); a node moved off the smooth map makes the finest local scale,
+/// and so the grid, explode (one moved node asked for 14 GB).
+pub const MAX_IDEAL_GRID_RATIO: f64 = 16.0;
+
+/// The ideal grid's size implied by the nodes' extent at the finest scale,
+/// refused beyond [`MAX_IDEAL_GRID_RATIO`] screens.
+fn check_ideal_grid(cal: &GeometryCalibration) -> std::result::Result<(), String> {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for t in &cal.tan {
+        for k in 0..2 {
+            lo[k] = lo[k].min(t[k]);
+            hi[k] = hi[k].max(t[k]);
+        }
+    }
+    let f = cal.finest_scale;
+    let ideal =
+        ((hi[0] - lo[0]) * f + 2.0 * MARGIN as f64) * ((hi[1] - lo[1]) * f + 2.0 * MARGIN as f64);
+    let screen = (cal.screen.0 * cal.screen.1) as f64;
+    if ideal.is_finite() && ideal <= MAX_IDEAL_GRID_RATIO * screen {
+        return Ok(());
+    }
+    Err(format!(
+        "the map's finest local scale ({f:.4e} px per unit tangent) would need a pre-warp grid of \
+         {:.1e} pixels, {:.0}× the screen (limit {MAX_IDEAL_GRID_RATIO}×): is a node far off the smooth map?",
+        ideal,
+        ideal / screen
+    ))
 }
 
 impl PreWarp {
