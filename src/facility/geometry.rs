@@ -213,11 +213,23 @@ impl GeometryCalibration {
             for (k, v) in vals.iter_mut().enumerate() {
                 let s = cells[col[k]];
                 let what = GEOMETRY_COLUMNS[k];
-                *v = s
-                    .parse()
-                    .map_err(|_| err(ln, format!("{what}: not a number: {s:?}")))?;
+                *v = s.parse().map_err(|_| {
+                    err(
+                        ln,
+                        format!(
+                            "{what}: not a number: `{}`",
+                            crate::error::abbreviate(s, 40)
+                        ),
+                    )
+                })?;
                 if !v.is_finite() {
-                    return Err(err(ln, format!("{what}: non-finite value {s:?}")));
+                    return Err(err(
+                        ln,
+                        format!(
+                            "{what}: non-finite value `{}`",
+                            crate::error::abbreviate(s, 40)
+                        ),
+                    ));
                 }
             }
             nodes.push((vals, ln));

@@ -185,11 +185,23 @@ impl DisplayLut {
                 return Err(err(ln, format!("expected 2 fields, found {}", cells.len())));
             }
             let num = |s: &str, what: &str| -> Result<f64> {
-                let v: f64 = s
-                    .parse()
-                    .map_err(|_| err(ln, format!("{what}: not a number: {s:?}")))?;
+                let v: f64 = s.parse().map_err(|_| {
+                    err(
+                        ln,
+                        format!(
+                            "{what}: not a number: `{}`",
+                            crate::error::abbreviate(s, 40)
+                        ),
+                    )
+                })?;
                 if !v.is_finite() {
-                    return Err(err(ln, format!("{what}: non-finite value {s:?}")));
+                    return Err(err(
+                        ln,
+                        format!(
+                            "{what}: non-finite value `{}`",
+                            crate::error::abbreviate(s, 40)
+                        ),
+                    ));
                 }
                 Ok(v)
             };

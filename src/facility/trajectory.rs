@@ -60,17 +60,27 @@ pub const REQUIRED_COLUMNS: usize = 11;
 /// Rejects non-finite components and (near-)zero norm; `field` names the
 /// offending value in the error.
 pub fn quat_from_wxyz(q: [f64; 4], field: &str) -> Result<DQuat> {
+    let shown = || format!("[{:e}, {:e}, {:e}, {:e}]", q[0], q[1], q[2], q[3]);
     if q.iter().any(|c| !c.is_finite()) {
         return Err(Error::invalid(
             field,
-            format!("non-finite quaternion {q:?}"),
+            format!("non-finite quaternion {}", shown()),
         ));
     }
-    let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
-    if norm <= 1e-12 || !norm.is_finite() {
+    // Scaled first, so a 1e200 component neither overflows the sum of
+    // squares nor is mistaken for a zero norm.
+    let big = q.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    if big == 0.0 {
         return Err(Error::invalid(
             field,
-            format!("quaternion {q:?} has zero norm"),
+            format!("quaternion {} has zero norm", shown()),
+        ));
+    }
+    let norm = big * q.iter().map(|c| (c / big) * (c / big)).sum::<f64>().sqrt();
+    if norm <= 1e-12 {
+        return Err(Error::invalid(
+            field,
+            format!("quaternion {} has a norm below 1e-12", shown()),
         ));
     }
     Ok(DQuat::from_xyzw(
@@ -84,7 +94,10 @@ pub fn quat_from_wxyz(q: [f64; 4], field: &str) -> Result<DQuat> {
 /// Checks a 3-vector for finiteness.
 pub fn vec3_checked(v: [f64; 3], field: &str) -> Result<DVec3> {
     if v.iter().any(|c| !c.is_finite()) {
-        return Err(Error::invalid(field, format!("non-finite vector {v:?}")));
+        return Err(Error::invalid(
+            field,
+            format!("non-finite vector [{:e}, {:e}, {:e}]", v[0], v[1], v[2]),
+        ));
     }
     Ok(DVec3::from_array(v))
 }
@@ -253,9 +266,14 @@ fn parse_cell(cell: &str) -> std::result::Result<Option<f64>, String> {
     if s.is_empty() {
         return Ok(None);
     }
-    let x: f64 = s.parse().map_err(|_| format!("not a number: {s:?}"))?;
+    let x: f64 = s
+        .parse()
+        .map_err(|_| format!("not a number: `{}`", crate::error::abbreviate(s, 40)))?;
     if !x.is_finite() {
-        return Err(format!("non-finite value {s:?}"));
+        return Err(format!(
+            "non-finite value `{}`",
+            crate::error::abbreviate(s, 40)
+        ));
     }
     Ok(Some(x))
 }
@@ -280,6 +298,8 @@ impl Trajectory {
     /// Parses CSV text; `path` is only used in error messages.
     pub fn parse(text: &str, path: impl AsRef<Path>) -> Result<Trajectory> {
         let path = path.as_ref();
+        // A byte-order mark is not part of the first column's name.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let err = |line: usize, msg: String| Error::parse(path, format!("line {line}: {msg}"));
         let mut lines = text
             .lines()
@@ -471,6 +491,30 @@ mod tests {
 
         let text = format!("{HEADER}\n0,1,2,3,1,0,0,0,1,1\n");
         assert!(msg(Trajectory::parse(&text, "i.csv").unwrap_err()).contains("found 10"));
+    }
+
+    /// Messages a person can act on: a huge component is normalised, not
+    /// called zero; a 1 MB cell is abbreviated; a BOM is not a column name.
+    #[test]
+    fn hostile_cells_give_short_exact_messages() {
+        let text = format!("{HEADER}\n0,1,2,3,1e200,0,0,1e200,1,1,1\n");
+        let t = Trajectory::parse(&text, "a.csv").unwrap();
+        let q = t.states[0].camera_attitude;
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        assert!((q.w - h).abs() < 1e-15 && (q.z - h).abs() < 1e-15, "{q}");
+
+        let cell = "9".repeat(1_000_000) + "x";
+        let text = format!("{HEADER}\n0,1,{cell},3,1,0,0,0,1,1,1\n");
+        let e = msg(Trajectory::parse(&text, "b.csv").unwrap_err());
+        assert!(
+            e.len() < 200 && e.contains("cam_y") && e.contains('…'),
+            "{}",
+            &e[..200.min(e.len())]
+        );
+        assert!(!e.contains('"'), "no debug quoting: {e}");
+
+        let text = format!("\u{feff}{HEADER}\n0,1,2,3,1,0,0,0,1,1,1\n");
+        assert_eq!(Trajectory::parse(&text, "c.csv").unwrap().len(), 1);
     }
 
     #[test]

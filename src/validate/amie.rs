@@ -244,7 +244,10 @@ fn exposure_s(label: &Label) -> Result<f64> {
         other => {
             return Err(Error::parse(
                 label.path(),
-                format!("`EXPOSURE_DURATION`: unit {other:?}, expected <MS> or <S>"),
+                format!(
+                    "`EXPOSURE_DURATION`: unit {}, expected <MS> or <S>",
+                    other.map_or("missing".to_string(), |u| format!("<{u}>"))
+                ),
             ))
         }
     };

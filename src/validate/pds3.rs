@@ -258,7 +258,10 @@ impl Label {
             }
             other => Err(root.err(
                 &key,
-                format!("detached or malformed pointer {other:?} is not supported"),
+                format!(
+                    "detached or malformed pointer {} is not supported",
+                    other.describe()
+                ),
             )),
         }
     }
