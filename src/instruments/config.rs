@@ -47,6 +47,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use super::spot_meter::SerialSpotMeter;
+use super::SpotMeter;
 use crate::error::{Error, Result};
 
 /// Key prefix of the meter table, for error messages.
@@ -445,7 +447,11 @@ impl ReplySpec {
                     ));
                 }
                 let sep = &self.pair_separator;
-                text(&k("pair_separator"), sep, false)?;
+                // A space is a valid separator: only emptiness is refused.
+                text(&k("pair_separator"), sep, true)?;
+                if sep.is_empty() {
+                    return Err(Error::invalid(k("pair_separator"), "must not be empty"));
+                }
                 if sep.contains(['\r', '\n', ';'])
                     || sep
                         .chars()
@@ -597,6 +603,22 @@ pub fn abbreviate(s: &str, max: usize) -> String {
         out.push_str(&piece);
     }
     out
+}
+
+/// Opens the real spot meter `cfg` describes; relative paths resolve
+/// against `base_dir` (the facility file's folder). `kind = "sim"` is an
+/// error here: the simulated facility builds its own meter.
+pub fn open_spot_meter(cfg: &SpotMeterConfig, base_dir: &Path) -> Result<Box<dyn SpotMeter>> {
+    cfg.validate()?;
+    let mut cfg = cfg.clone();
+    cfg.resolve_paths(base_dir);
+    match cfg.kind {
+        MeterKind::Serial => Ok(Box::new(SerialSpotMeter::open(cfg)?)),
+        MeterKind::Sim => Err(Error::invalid(
+            format!("{METER_KEY}.kind"),
+            "\"sim\" is the simulated facility's meter: it is built by the simulated facility, not opened here",
+        )),
+    }
 }
 
 #[cfg(test)]
