@@ -47,8 +47,9 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use super::camera::{CommandCamera, FilesCamera};
 use super::spot_meter::SerialSpotMeter;
-use super::SpotMeter;
+use super::{Camera, SpotMeter};
 use crate::error::{Error, Result};
 
 /// Key prefix of the meter table, for error messages.
@@ -617,6 +618,31 @@ pub fn open_spot_meter(cfg: &SpotMeterConfig, base_dir: &Path) -> Result<Box<dyn
         MeterKind::Sim => Err(Error::invalid(
             format!("{METER_KEY}.kind"),
             "\"sim\" is the simulated facility's meter: it is built by the simulated facility, not opened here",
+        )),
+    }
+}
+
+/// Opens the real camera `cfg` describes; relative paths resolve against
+/// `base_dir`. `kind = "sim"` is an error here: the simulated facility
+/// builds its own camera.
+pub fn open_camera(cfg: &CameraConfig, base_dir: &Path) -> Result<Box<dyn Camera>> {
+    cfg.validate()?;
+    let mut cfg = cfg.clone();
+    cfg.resolve_paths(base_dir);
+    if let Some(dir) = &cfg.dir {
+        if !dir.is_dir() {
+            return Err(Error::invalid(
+                format!("{CAMERA_KEY}.dir"),
+                format!("{} is not a folder", dir.display()),
+            ));
+        }
+    }
+    match cfg.kind {
+        CameraKind::Files => Ok(Box::new(FilesCamera::new(cfg)?)),
+        CameraKind::Command => Ok(Box::new(CommandCamera::new(cfg)?)),
+        CameraKind::Sim => Err(Error::invalid(
+            format!("{CAMERA_KEY}.kind"),
+            "\"sim\" is the simulated facility's camera: it is built by the simulated facility, not opened here",
         )),
     }
 }

@@ -17,6 +17,7 @@ use crate::error::Result;
 
 pub mod camera;
 pub mod config;
+pub mod frame;
 pub mod spot_meter;
 
 /// One spot-meter measurement.
