@@ -268,6 +268,34 @@ fn sim_kind_and_missing_port_are_clear_errors() {
     );
 }
 
+#[test]
+fn malformed_replies_name_what_is_wrong() {
+    let sp = spec("format = \"spectrum\"\nprefix = \"S\"\nend = \"END\"\nerror_prefix = \"ERR\"");
+    let sc = spec("prefix = \"OK\"\nfield = 1\nerror_prefix = \"ER\"");
+    let cases = [
+        (&sp, "S\n400,1;400,2\nEND\n", "increase strictly"),
+        (&sp, "S\n400,1;500,2\n", "terminator"),
+        (&sp, "S\n400,1\nEND\n", "at least two"),
+        (&sp, "S\n400;500,2\nEND\n", "record 0"),
+        (&sp, "S\n-4,1;500,2\nEND\n", "wavelength"),
+        (&sp, "S\n400,nan;500,2\nEND\n", "finite"),
+        (&sp, "ERR 12\r", "reports an error"),
+        (&sc, "OK 1\r", "no field 1"),
+        (&sc, "OK 1 1e999\r", "not a finite number"),
+        (&sc, "KO 1 2\r", "start with `OK`"),
+        (&sc, "ER 5\r", "reports an error"),
+    ];
+    for (s, text, want) in cases {
+        let e = parse_reply(s, text).unwrap_err().to_string();
+        assert!(
+            e.contains(want) && e.starts_with("malformed reply"),
+            "{text:?}: {e}"
+        );
+    }
+    // A spectrum's error reply ends at its first line, as a scalar's does.
+    assert!(reply_complete(&sp, "ERR 12\r"));
+}
+
 fn spec(text: &str) -> ReplySpec {
     let s: ReplySpec = toml::from_str(text).unwrap();
     s.validate("reply").unwrap();
