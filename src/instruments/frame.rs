@@ -389,8 +389,13 @@ pub fn region_mean(
             .is_some_and(|e| e <= frame.height);
     if !inside || frame.data.len() != frame.width * frame.height {
         return Err(Error::Other(format!(
-            "pattern `{pattern}`: region {rect:?} is not inside the {} × {} frame",
-            frame.width, frame.height
+            "pattern `{pattern}`: region columns {}..{}, rows {}..{} is not inside the {} × {} frame",
+            rect.x,
+            rect.x.saturating_add(rect.width),
+            rect.y,
+            rect.y.saturating_add(rect.height),
+            frame.width,
+            frame.height
         )));
     }
     let corrected;

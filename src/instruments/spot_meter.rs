@@ -453,7 +453,7 @@ impl SerialSpotMeter {
                     .unwrap_or_else(|| "reply too long".into());
                 let why = why.split("; reply").next().unwrap_or("").to_string();
                 self.error(&format!(
-                    "{why} to command `{cmd}` ({tries} attempts); reply `{}`",
+                    "{why} (command `{cmd}`, {tries} attempts); reply `{}`",
                     abbreviate(&got, QUOTE)
                 ))
             }
