@@ -13,6 +13,7 @@
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
+//! | [`figures`] | small PNG figures for reports: curves with residuals, heatmaps, quivers |
 //!
 //! Conventions (SI units, OpenCV camera frame, scalar-first quaternions,
 //! pixel centres at +0.5) are described in `docs/CONVENTIONS.md`.
@@ -22,6 +23,7 @@
 
 pub mod error;
 pub mod facility;
+pub mod figures;
 pub mod instruments;
 pub mod radiometry;
 pub mod render;
