@@ -15,6 +15,9 @@
 
 use crate::error::Result;
 
+pub mod camera;
+pub mod config;
+
 /// One spot-meter measurement.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SpotReading {
