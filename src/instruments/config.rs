@@ -47,6 +47,9 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use super::camera::{CommandCamera, FilesCamera};
+use super::spot_meter::SerialSpotMeter;
+use super::{Camera, SpotMeter};
 use crate::error::{Error, Result};
 
 /// Key prefix of the meter table, for error messages.
@@ -445,7 +448,11 @@ impl ReplySpec {
                     ));
                 }
                 let sep = &self.pair_separator;
-                text(&k("pair_separator"), sep, false)?;
+                // A space is a valid separator: only emptiness is refused.
+                text(&k("pair_separator"), sep, true)?;
+                if sep.is_empty() {
+                    return Err(Error::invalid(k("pair_separator"), "must not be empty"));
+                }
                 if sep.contains(['\r', '\n', ';'])
                     || sep
                         .chars()
@@ -597,6 +604,47 @@ pub fn abbreviate(s: &str, max: usize) -> String {
         out.push_str(&piece);
     }
     out
+}
+
+/// Opens the real spot meter `cfg` describes; relative paths resolve
+/// against `base_dir` (the facility file's folder). `kind = "sim"` is an
+/// error here: the simulated facility builds its own meter.
+pub fn open_spot_meter(cfg: &SpotMeterConfig, base_dir: &Path) -> Result<Box<dyn SpotMeter>> {
+    cfg.validate()?;
+    let mut cfg = cfg.clone();
+    cfg.resolve_paths(base_dir);
+    match cfg.kind {
+        MeterKind::Serial => Ok(Box::new(SerialSpotMeter::open(cfg)?)),
+        MeterKind::Sim => Err(Error::invalid(
+            format!("{METER_KEY}.kind"),
+            "\"sim\" is the simulated facility's meter: it is built by the simulated facility, not opened here",
+        )),
+    }
+}
+
+/// Opens the real camera `cfg` describes; relative paths resolve against
+/// `base_dir`. `kind = "sim"` is an error here: the simulated facility
+/// builds its own camera.
+pub fn open_camera(cfg: &CameraConfig, base_dir: &Path) -> Result<Box<dyn Camera>> {
+    cfg.validate()?;
+    let mut cfg = cfg.clone();
+    cfg.resolve_paths(base_dir);
+    if let Some(dir) = &cfg.dir {
+        if !dir.is_dir() {
+            return Err(Error::invalid(
+                format!("{CAMERA_KEY}.dir"),
+                format!("{} is not a folder", dir.display()),
+            ));
+        }
+    }
+    match cfg.kind {
+        CameraKind::Files => Ok(Box::new(FilesCamera::new(cfg)?)),
+        CameraKind::Command => Ok(Box::new(CommandCamera::new(cfg)?)),
+        CameraKind::Sim => Err(Error::invalid(
+            format!("{CAMERA_KEY}.kind"),
+            "\"sim\" is the simulated facility's camera: it is built by the simulated facility, not opened here",
+        )),
+    }
 }
 
 #[cfg(test)]

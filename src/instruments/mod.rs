@@ -17,6 +17,8 @@ use crate::error::Result;
 
 pub mod camera;
 pub mod config;
+pub mod frame;
+pub mod spot_meter;
 
 /// One spot-meter measurement.
 #[derive(Debug, Clone, PartialEq)]
