@@ -12,6 +12,7 @@
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
+//! | [`calibration`] | `optistim calibrate`: the screen's LUT, flat field and verification, measured through the instruments |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
 //! | [`figures`] | small PNG figures for reports: curves with residuals, heatmaps, quivers |
 //!
@@ -21,6 +22,7 @@
 // `!(x > 0.0)` is used on purpose: it is also true for NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod calibration;
 pub mod error;
 pub mod facility;
 pub mod figures;
