@@ -18,6 +18,7 @@ use crate::error::Result;
 pub mod camera;
 pub mod config;
 pub mod frame;
+pub mod intrinsics;
 pub mod spot_meter;
 
 /// One spot-meter measurement.
