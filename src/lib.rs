@@ -12,6 +12,7 @@
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
+//! | [`simfacility`] | a seeded physics model of screen, collimator, camera and spot meter: the truth to rehearse calibration and `run` on |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
 //!
 //! Conventions (SI units, OpenCV camera frame, scalar-first quaternions,
@@ -26,6 +27,7 @@ pub mod instruments;
 pub mod radiometry;
 pub mod render;
 pub mod scene;
+pub mod simfacility;
 pub mod validate;
 
 pub use error::{Error, Result};
