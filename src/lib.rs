@@ -13,6 +13,7 @@
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
 //! | [`calibration`] | `optistim calibrate`: the screen's LUT, flat field and verification, measured through the instruments |
+//! | [`simfacility`] | a seeded physics model of screen, collimator, camera and spot meter: the truth to rehearse calibration and `run` on |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
 //! | [`figures`] | small PNG figures for reports: curves with residuals, heatmaps, quivers |
 //!
@@ -30,6 +31,7 @@ pub mod instruments;
 pub mod radiometry;
 pub mod render;
 pub mod scene;
+pub mod simfacility;
 pub mod validate;
 
 pub use error::{Error, Result};
