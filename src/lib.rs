@@ -11,6 +11,7 @@
 //! | [`radiometry`] | how light is made and reflected: solar spectra, reflectance models, band integrals |
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
+//! | [`calibration`] | the screen calibration routines: dot patterns → geometry file, ... |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
 //!
@@ -20,6 +21,7 @@
 // `!(x > 0.0)` is used on purpose: it is also true for NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod calibration;
 pub mod error;
 pub mod facility;
 pub mod instruments;
