@@ -40,6 +40,9 @@ pub struct Blob {
     pub elongation: f64,
     /// Pixels of the component at or above the saturation level.
     pub saturated: usize,
+    /// The centroid window or its background ring crosses the frame's
+    /// edge: a dot cut by the edge, whose centroid is biased.
+    pub truncated: bool,
 }
 
 /// A dark-subtracted frame.
@@ -104,13 +107,14 @@ pub fn detect(signal: &Signal, raw: &[f32], saturation_dn: f32) -> Result<Vec<Bl
                 .iter()
                 .filter(|&&k| raw[k] >= saturation_dn)
                 .count();
-            let (centre, flux) = refine(signal, centres[i], c.pixels.len(), nearest);
+            let (centre, flux, truncated) = refine(signal, centres[i], c.pixels.len(), nearest);
             Blob {
                 centre,
                 area: c.pixels.len(),
                 flux,
                 elongation: c.elongation(w),
                 saturated,
+                truncated,
             }
         })
         .collect();
@@ -118,8 +122,9 @@ pub fn detect(signal: &Signal, raw: &[f32], saturation_dn: f32) -> Result<Vec<Bl
 }
 
 /// Blobs whose area is within [`AREA_FACTOR`] of `typical_area` and whose
-/// elongation is at most [`MAX_ELONGATION`]: the dots; the rest are
-/// spurious (reflections, hot pixels, merged dots, dust).
+/// elongation is at most [`MAX_ELONGATION`], away from the frame's edge:
+/// the dots; the rest are spurious (reflections, hot pixels, merged dots,
+/// dust) or cut by the edge.
 pub fn plausible(blobs: Vec<Blob>, typical_area: f64) -> (Vec<Blob>, usize) {
     let n = blobs.len();
     let kept: Vec<Blob> = blobs
@@ -129,6 +134,7 @@ pub fn plausible(blobs: Vec<Blob>, typical_area: f64) -> (Vec<Blob>, usize) {
             a * AREA_FACTOR >= typical_area
                 && a <= typical_area * AREA_FACTOR
                 && b.elongation <= MAX_ELONGATION
+                && !b.truncated
         })
         .collect();
     let rejected = n - kept.len();
@@ -238,8 +244,9 @@ fn components(signal: &Signal, threshold: f64) -> Result<Vec<Component>> {
 /// centre). The window's radius is 1.5 times the component's equivalent radius plus a pixel
 /// (the dot's wings below the threshold carry signal too), at most what
 /// keeps the window and its background ring clear of the nearest other
-/// blob. Returns the centre and the window's signal.
-fn refine(signal: &Signal, start: [f64; 2], area: usize, nearest: f64) -> ([f64; 2], f64) {
+/// blob. Returns the centre, the window's signal, and whether the window
+/// or its ring crossed the frame's edge.
+fn refine(signal: &Signal, start: [f64; 2], area: usize, nearest: f64) -> ([f64; 2], f64, bool) {
     let (w, h, d) = (signal.width, signal.height, signal.data);
     let equivalent = (area as f64 / std::f64::consts::PI).sqrt();
     let radius = (1.5 * equivalent + 1.0).min(0.5 * nearest - 3.0).max(1.5);
@@ -247,7 +254,12 @@ fn refine(signal: &Signal, start: [f64; 2], area: usize, nearest: f64) -> ([f64;
     let mut c = start;
     let mut flux = 0.0;
     let mut ring = Vec::new();
+    let mut truncated = false;
     for _ in 0..6 {
+        truncated = c[0] - ring_out < 0.0
+            || c[1] - ring_out < 0.0
+            || c[0] + ring_out > w as f64
+            || c[1] + ring_out > h as f64;
         let x0 = (c[0] - ring_out).floor().max(0.0) as usize;
         let y0 = (c[1] - ring_out).floor().max(0.0) as usize;
         let x1 = ((c[0] + ring_out).ceil().max(0.0) as usize).min(w);
@@ -289,7 +301,7 @@ fn refine(signal: &Signal, start: [f64; 2], area: usize, nearest: f64) -> ([f64;
             break;
         }
     }
-    (c, flux)
+    (c, flux, truncated)
 }
 
 #[cfg(test)]
