@@ -8,7 +8,9 @@
 //! of the predicted distance to the neighbouring dots), one detection per
 //! dot, nearest pairs first. Missing dots leave their prediction unmatched;
 //! spurious blobs fall outside every gate. The caller refits the full model
-//! on the matches and matches again with its better predictions.
+//! on the matches and matches again with its better predictions, over a
+//! region of the screen that grows from the anchors (a homography
+//! extrapolated far beyond them could be off by a whole dot).
 
 use super::fit::{apply_homography, homography, normalise};
 use super::patterns::DotGrid;
@@ -100,17 +102,21 @@ pub fn local_spacing(predict: &impl Fn(f64, f64) -> [f64; 2], grid: &DotGrid, c:
         .min((pv[0] - p[0]).hypot(pv[1] - p[1]))
 }
 
-/// For each grid dot, the index of the detection matched to it: the
-/// nearest within `gate` × the local spacing of the predictions, each
-/// detection used once (closest pairs first).
+/// For each grid dot marked `active`, the index of the detection matched
+/// to it: the nearest within `gate` × the local spacing of the
+/// predictions, each detection used once (closest pairs first).
 pub fn match_dots(
     grid: &DotGrid,
     predict: &impl Fn(f64, f64) -> [f64; 2],
     detections: &[[f64; 2]],
     gate: f64,
+    active: &[bool],
 ) -> Vec<Option<usize>> {
     let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
     for (dot, c) in grid.centres.iter().enumerate() {
+        if !active[dot] {
+            continue;
+        }
         let p = predict(c[0], c[1]);
         let radius = gate * local_spacing(predict, grid, *c);
         for (k, d) in detections.iter().enumerate() {
@@ -202,6 +208,13 @@ mod tests {
         let (a, b) = (view(32.0, 48.0), view(96.0, 48.0));
         det.push([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0]);
         det.push([0.5, 0.5]);
-        assert_eq!(match_dots(&g, &view, &det, 0.3), truth);
+        assert_eq!(
+            match_dots(&g, &view, &det, 0.3, &vec![true; g.centres.len()]),
+            truth
+        );
+        // Inactive dots are not matched.
+        let mut active = vec![true; g.centres.len()];
+        active[0] = false;
+        assert_eq!(match_dots(&g, &view, &det, 0.3, &active)[0], None);
     }
 }

@@ -70,8 +70,9 @@ pub struct GeometricConfig {
     /// neighbouring dots (0.05–0.5).
     #[serde(default = "default_gate")]
     pub gate: f64,
-    /// Most predict–match–fit rounds (1–50); stops earlier once the
-    /// matches no longer change.
+    /// Most predict–match–fit rounds over the whole grid (1–50), after
+    /// those that grow the matched region from the anchors; stops earlier
+    /// once the matches no longer change.
     #[serde(default = "default_iterations")]
     pub iterations: usize,
     /// Outlier rejection: residuals beyond this many per-axis RMS (2–10).
@@ -443,18 +444,31 @@ pub fn solve(
         floor: 1e-3 / intrinsics.fx.max(intrinsics.fy),
         correction_degree: cfg.correction_degree,
     };
+    // The matched region: a disc about the central anchor, twice the
+    // anchors' extent at first, doubling each round until it holds every
+    // dot; then up to `iterations` rounds until the matches are stable.
+    let centre = grid.centres[grid.anchors()[grid.anchors().len() / 2]];
+    let dist = |c: &[f64; 2]| (c[0] - centre[0]).hypot(c[1] - centre[1]);
+    let full = grid.centres.iter().map(dist).fold(0.0, f64::max);
+    let mut radius = 2.0 * grid.spacing * grid.anchor_step() as f64 * std::f64::consts::SQRT_2;
     let mut previous: Option<Vec<Option<usize>>> = None;
     let mut result = None;
-    let mut rounds = 0;
-    for _ in 0..cfg.iterations {
+    let (mut rounds, mut covered_rounds) = (0, 0);
+    while covered_rounds < cfg.iterations {
         rounds += 1;
-        let matches = matching::match_dots(grid, &predict, &tans, cfg.gate);
+        let covered = radius >= full;
+        let active: Vec<bool> = grid.centres.iter().map(|c| dist(c) <= radius).collect();
+        radius *= 2.0;
+        let matches = matching::match_dots(grid, &predict, &tans, cfg.gate, &active);
         let pairs: Vec<(usize, usize)> = matches
             .iter()
             .enumerate()
             .filter_map(|(dot, m)| m.map(|k| (dot, k)))
             .collect();
         if pairs.len() < cfg.min_dots {
+            if !covered {
+                continue;
+            }
             return Err(Error::Other(format!(
                 "geometric calibration: too few dots: {} of {} identified, min_dots = {} \
                  ({found} blobs found, {rejected} rejected by size or shape): check the \
@@ -469,9 +483,12 @@ pub fn solve(
         let f = fit::fit(screen, &uv, &tan, &settings)?;
         let model = f.model.clone();
         predict = Box::new(move |u, v| model.direction(u, v));
-        let stable = previous.as_ref() == Some(&matches);
-        previous = Some(matches);
+        let stable = covered && previous.as_ref() == Some(&matches);
+        previous = covered.then_some(matches);
         result = Some((f, pairs));
+        if covered {
+            covered_rounds += 1;
+        }
         if stable {
             break;
         }

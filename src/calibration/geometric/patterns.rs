@@ -70,17 +70,20 @@ impl DotGrid {
         }
     }
 
-    /// Indices of the anchor dots: the grid dots nearest to a 3 × 3 set of
-    /// screen positions at 1/6, 1/2 and 5/6 of each axis (inside the field
-    /// a camera that sees most of the screen covers, and spread enough to
-    /// fix a homography). Fewer when the grid is too small to give nine
-    /// distinct dots.
+    /// Indices of the anchor dots: a 3 × 3 block of grid dots around the
+    /// dot nearest the screen centre, `anchor_step` dots apart (an eighth
+    /// of the shorter grid side, at least one): near the centre, because
+    /// the collimator's axis is there and a camera whose field is smaller
+    /// than the screen still sees them; spread enough to fix a homography.
+    /// Fewer near a grid too small for nine distinct dots.
     pub fn anchors(&self) -> Vec<usize> {
+        let step = self.anchor_step() as isize;
+        let (c0, r0) = ((self.cols / 2) as isize, (self.rows / 2) as isize);
         let mut out: Vec<usize> = Vec::new();
-        for fy in [1.0 / 6.0, 0.5, 5.0 / 6.0] {
-            for fx in [1.0 / 6.0, 0.5, 5.0 / 6.0] {
-                let col = ((fx * self.cols as f64).floor() as usize).min(self.cols - 1);
-                let row = ((fy * self.rows as f64).floor() as usize).min(self.rows - 1);
+        for dr in [-step, 0, step] {
+            for dc in [-step, 0, step] {
+                let col = (c0 + dc).clamp(0, self.cols as isize - 1) as usize;
+                let row = (r0 + dr).clamp(0, self.rows as isize - 1) as usize;
                 let k = row * self.cols + col;
                 if !out.contains(&k) {
                     out.push(k);
@@ -88,6 +91,11 @@ impl DotGrid {
             }
         }
         out
+    }
+
+    /// Dots between neighbouring anchors.
+    pub fn anchor_step(&self) -> usize {
+        ((self.cols.min(self.rows) as f64 / 8.0).round() as usize).max(1)
     }
 
     /// A black frame (`w × h` pixels `0x00RRGGBB`) with the dots `which`.
@@ -174,5 +182,15 @@ mod tests {
         assert_eq!(a.len(), 9);
         let centre = g.centres[a[4]];
         assert!((centre[0] - 960.0).abs() <= 64.0 && (centre[1] - 540.0).abs() <= 64.0);
+        // 30 × 16 dots: anchors 2 dots (128 px) apart.
+        assert_eq!(g.anchor_step(), 2);
+        let corner = g.centres[a[0]];
+        assert_eq!(
+            [centre[0] - corner[0], centre[1] - corner[1]],
+            [128.0, 128.0]
+        );
+        // A tiny grid still gives distinct anchors.
+        let tiny = DotGrid::new((64, 32), 32, 2.0, DotShape::Disc, 255, 8);
+        assert_eq!(tiny.anchors().len(), 2);
     }
 }
