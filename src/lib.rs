@@ -13,6 +13,7 @@
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
 //! | [`calibration`] | the screen calibration routines: dot patterns → geometry file, ... |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
+//! | [`simfacility`] | a seeded physics model of screen, collimator, camera and spot meter: the truth to rehearse calibration and `run` on |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
 //!
 //! Conventions (SI units, OpenCV camera frame, scalar-first quaternions,
@@ -28,6 +29,7 @@ pub mod instruments;
 pub mod radiometry;
 pub mod render;
 pub mod scene;
+pub mod simfacility;
 pub mod validate;
 
 pub use error::{Error, Result};

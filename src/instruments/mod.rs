@@ -15,6 +15,11 @@
 
 use crate::error::Result;
 
+pub mod camera;
+pub mod config;
+pub mod frame;
+pub mod spot_meter;
+
 /// One spot-meter measurement.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SpotReading {
