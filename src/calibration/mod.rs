@@ -1,8 +1,7 @@
 //! Screen calibration (`optistim calibrate`): the routines that measure the
 //! facility's screen through its camera and spot meter and write the files
-//! `optistim run` reads — the display LUT (radiometric), the flat field,
-//! and (src/calibration/geometric/, separately) the geometry — and check
-//! them (verify). It comes after [`facility`](crate::facility) on the data
+//! `optistim run` reads — the display LUT (radiometric), the flat field
+//! and the geometry — and check them (verify). It comes after [`facility`](crate::facility) on the data
 //! flow: it drives the screen through the
 //! [`Display`](crate::facility::display::Display) trait and measures
 //! through the [`instruments`](crate::instruments) traits only, so the real
@@ -14,6 +13,7 @@
 //! | [`checkpoint`] | the crash-safe JSONL log of measurements, `--resume` |
 //! | [`mismatch`] | camera-effective radiance and the spectral mismatch factor F |
 //! | [`radiometric`] | drive level → camera-effective radiance: the LUT CSV, report and plot |
+//! | [`geometric`] | dot patterns → the geometry CSV (screen pixel → camera direction) |
 //! | [`flat`] | the per-pixel flat-field gain TIFF and its uniformity |
 //! | [`verify`] | target radiances through the real conversion path, achieved/target, drift |
 //!
@@ -22,6 +22,7 @@
 pub mod checkpoint;
 pub mod config;
 pub mod flat;
+pub mod geometric;
 pub mod mismatch;
 pub mod radiometric;
 pub mod verify;
