@@ -32,6 +32,7 @@
 //! drift_levels = [64, 128, 255]
 //! drift_warn_percent = 1.0
 //!
+//! [calibrate.geometric]       # see docs/GEOMETRIC.md
 //! [calibrate.meter]           # see docs/INSTRUMENTS.md
 //! [calibrate.camera]
 //! ```
@@ -102,6 +103,10 @@ pub struct CalibrateConfig {
     #[serde(default)]
     pub meter: Option<SpotMeterConfig>,
     pub camera: CameraConfig,
+    /// `[calibrate.geometric]`, read by
+    /// [`geometric::GeometricConfig`](super::geometric::GeometricConfig).
+    #[serde(default)]
+    pub geometric: Option<toml::Value>,
 }
 
 /// `[calibrate.flat]`.
