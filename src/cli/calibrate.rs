@@ -295,6 +295,10 @@ fn run_flat(
             let f = optistim::instruments::frame::read_frame(p)?;
             Some(f.2)
         }
+        None if sim.is_some() => {
+            // The simulated camera's own flat, as its calibration would give it.
+            sim.map(|s| s.camera_flat())
+        }
         None => {
             tracing::warn!("calibrate.flat.camera_flat not given: the camera's own vignetting and PRNU will be taken for the screen's");
             None
