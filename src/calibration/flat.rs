@@ -131,10 +131,13 @@ struct PixelMap {
     seen: [f64; 4],
 }
 
+/// One camera row: screen positions and etendues.
+type RowMap = (Vec<Option<(f64, f64)>>, Vec<f64>);
+
 fn pixel_map(setup: &FlatSetup, width: usize, height: usize) -> Result<PixelMap> {
     let inv = Inverse::new(setup.geometry)?;
     let dir = setup.pixel_direction;
-    let rows: Vec<(Vec<Option<(f64, f64)>>, Vec<f64>)> = (0..height)
+    let rows: Vec<RowMap> = (0..height)
         .into_par_iter()
         .map(|j| {
             let mut s = Vec::with_capacity(width);

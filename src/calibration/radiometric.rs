@@ -133,12 +133,12 @@ pub fn run(inst: &mut Instruments, setup: &mut Setup, ckpt: &mut Checkpoint) -> 
         .as_ref()
         .map_or("none".to_string(), |m| m.describe());
 
-    let mut power = setup.screen_power.take();
+    let power = setup.screen_power.take();
     let setup: &Setup = setup;
     let mut taker = Taker::new(setup, inst)?;
     let ambient = match cfg.ambient {
         AmbientMode::None => None,
-        AmbientMode::Prompt => Some(taker.ambient(inst, power.as_deref_mut(), ckpt)?),
+        AmbientMode::Prompt => Some(taker.ambient(inst, power, ckpt)?),
     };
     let total = order.len() as u64 + 2;
     let bar = progress(total, "radiometric");
