@@ -12,7 +12,15 @@
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
+//! | [`calibration`] | `optistim calibrate`: the screen's LUT, flat field and verification, measured through the instruments |
+//! | [`simfacility`] | a seeded physics model of screen, collimator, camera and spot meter: the truth to rehearse calibration and `run` on |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
+//! | [`figures`] | small PNG figures for reports: curves with residuals, heatmaps, quivers |
+//!
+//! Support modules: [`error`] (the error type), [`infile`] (size-bounded
+//! input reads), [`outfile`] (outputs that never clobber), [`fuzzing`]
+//! (every parser behind one entry point, for the property tests and the
+//! long-run fuzz harness).
 //!
 //! Conventions (SI units, OpenCV camera frame, scalar-first quaternions,
 //! pixel centres at +0.5) are described in `docs/CONVENTIONS.md`.
@@ -20,8 +28,10 @@
 // `!(x > 0.0)` is used on purpose: it is also true for NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod calibration;
 pub mod error;
 pub mod facility;
+pub mod figures;
 pub mod fuzzing;
 pub mod infile;
 pub mod instruments;
@@ -29,6 +39,7 @@ pub mod outfile;
 pub mod radiometry;
 pub mod render;
 pub mod scene;
+pub mod simfacility;
 pub mod validate;
 
 pub use error::{Error, Result};

@@ -280,8 +280,9 @@ pub fn band_integrals(
 
 /// ∫_lo^hi f dλ by 3-point Gauss–Legendre on every interval between the
 /// merged table knots, each at most 1 nm wide: exact for products of
-/// piecewise-linear tables and λ, and 1e-12 for a Planck curve.
-fn integrate(lo: f64, hi: f64, knots: &[f64], f: impl Fn(f64) -> f64) -> f64 {
+/// piecewise-linear tables and λ, and 1e-12 for a Planck curve. `knots`
+/// must be sorted.
+pub fn integrate(lo: f64, hi: f64, knots: &[f64], f: impl Fn(f64) -> f64) -> f64 {
     const NODES: [f64; 3] = [-0.774_596_669_241_483_4, 0.0, 0.774_596_669_241_483_4];
     const WEIGHTS: [f64; 3] = [5.0 / 9.0, 8.0 / 9.0, 5.0 / 9.0];
     const MAX_STEP: f64 = 1e-9;

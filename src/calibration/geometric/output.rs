@@ -1,0 +1,161 @@
+//! What the geometric calibration writes: the geometry CSV (the lattice
+//! `run` reads, with a provenance header), the JSON report and the residual
+//! quiver plot.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use super::camera_model::Intrinsics;
+use super::patterns::DotGrid;
+use super::{GeometricConfig, GeometricReport, Solution};
+use crate::error::{Error, Result};
+use crate::facility::geometry::GeometryCalibration;
+
+/// Reads the camera intrinsics file.
+pub fn load_intrinsics(path: &Path) -> Result<Intrinsics> {
+    Intrinsics::load(path)
+}
+
+/// Nodes `0, step, 2 step, …` and always `size`.
+pub fn lattice_axis(size: usize, step: usize) -> Vec<usize> {
+    let mut xs: Vec<usize> = (0..size).step_by(step).collect();
+    xs.push(size);
+    xs
+}
+
+/// Current UTC time as `YYYY-MM-DDTHH:MM:SSZ`.
+pub fn utc_now() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    let (days, rem) = ((secs / 86_400) as i64, secs % 86_400);
+    // Days since 1970-01-01 → civil date (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem / 60 % 60,
+        rem % 60
+    )
+}
+
+/// The geometry CSV text of a solution.
+pub fn geometry_csv(
+    solution: &Solution,
+    grid: &DotGrid,
+    cfg: &GeometricConfig,
+    camera: &str,
+    date: &str,
+) -> String {
+    let (w, h) = grid.screen;
+    let (rms, max) = solution.residual_px();
+    let (rms_as, max_as) = solution.residual_arcsec();
+    let used = solution.dots.iter().filter(|d| d.used).count();
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# optistim geometric calibration: screen pixel -> camera direction (tan_x, tan_y) at zero attitude"
+    );
+    let _ = writeln!(s, "# date: {date}");
+    let _ = writeln!(s, "# software: optistim {}", env!("CARGO_PKG_VERSION"));
+    let _ = writeln!(s, "# camera: {}", camera.replace('\n', " "));
+    let _ = writeln!(s, "# intrinsics: {}", cfg.intrinsics.display());
+    let _ = writeln!(
+        s,
+        "# screen: {w}x{h}; dots every {} px ({:?}, radius {} px, level {}); {} shown",
+        cfg.spacing_px, grid.shape, cfg.radius_px, cfg.level, solution.dots_shown
+    );
+    let _ = writeln!(
+        s,
+        "# dots: {} identified, {used} used, {} rejected as outliers; anchors {} of {}",
+        solution.dots.len(),
+        solution.dots.len() - used,
+        solution.anchors_identified,
+        solution.anchors_shown
+    );
+    let _ = writeln!(
+        s,
+        "# residual: RMS {rms:.4} camera px ({rms_as:.3} arcsec), max {max:.4} camera px ({max_as:.3} arcsec)"
+    );
+    let _ = writeln!(
+        s,
+        "# model: homography + radial distortion about a fitted centre, Legendre correction of degree {}; lattice every {} px",
+        cfg.correction_degree, cfg.lattice_px
+    );
+    s.push_str("u_px,v_px,tan_x,tan_y\n");
+    for v in lattice_axis(h, cfg.lattice_px) {
+        for u in lattice_axis(w, cfg.lattice_px) {
+            let t = solution.fit.model.direction(u as f64, v as f64);
+            let _ = writeln!(s, "{u},{v},{:e},{:e}", t[0], t[1]);
+        }
+    }
+    s
+}
+
+/// Writes the geometry CSV (checked by loading it back as `run` does), the
+/// JSON report and the quiver plot.
+pub fn write_all(
+    solution: &Solution,
+    grid: &DotGrid,
+    cfg: &GeometricConfig,
+    camera: &str,
+    out_dir: &Path,
+) -> Result<GeometricReport> {
+    let date = utc_now();
+    let csv_path = out_dir.join(&cfg.output);
+    let text = geometry_csv(solution, grid, cfg, camera, &date);
+    std::fs::write(&csv_path, &text).map_err(|e| Error::io(&csv_path, e))?;
+    GeometryCalibration::load(&csv_path, grid.screen).map_err(|e| {
+        Error::Other(format!(
+            "the fitted geometry is not a valid calibration (the fit extrapolates badly \
+             beyond the dots the camera saw?): {e}"
+        ))
+    })?;
+    let (rms_px, max_px) = solution.residual_px();
+    let (rms_arcsec, max_arcsec) = solution.residual_arcsec();
+    let used = solution.dots.iter().filter(|d| d.used).count();
+    let report = GeometricReport {
+        date_utc: date,
+        software: format!("optistim {}", env!("CARGO_PKG_VERSION")),
+        camera: camera.to_string(),
+        intrinsics: cfg.intrinsics.clone(),
+        screen: [grid.screen.0, grid.screen.1],
+        config: cfg.clone(),
+        geometry_csv: csv_path,
+        report_json: out_dir.join("geometric_report.json"),
+        quiver_png: None,
+        dots_shown: solution.dots_shown,
+        blobs_detected: solution.blobs_detected,
+        blobs_rejected: solution.blobs_rejected,
+        dots_matched: solution.dots.len(),
+        dots_used: used,
+        dots_rejected: solution.dots.len() - used,
+        anchors_identified: solution.anchors_identified,
+        anchors_shown: solution.anchors_shown,
+        iterations: solution.iterations,
+        rms_px,
+        max_px,
+        rms_arcsec,
+        max_arcsec,
+        radial_k1_k2: solution.fit.model.radial_coefficients(),
+        model: solution.fit.model.clone(),
+        dots: solution.dots.clone(),
+    };
+    write_json(&report.report_json, &report)?;
+    Ok(report)
+}
+
+fn write_json(path: &PathBuf, report: &GeometricReport) -> Result<()> {
+    let text = serde_json::to_string_pretty(report)
+        .map_err(|e| Error::Other(format!("{}: {e}", path.display())))?;
+    std::fs::write(path, text).map_err(|e| Error::io(path, e))
+}

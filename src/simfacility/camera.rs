@@ -1,0 +1,249 @@
+//! The simulated facility camera's static tables and its detector chain:
+//! where each camera pixel looks on the screen, its etendue, its own flat
+//! (vignetting × PRNU), and a capture from what the screen showed.
+//!
+//! Electrons of pixel (i, j) over an exposure t:
+//!
+//! e = t · τ · A_pupil · Ω_ij · cos θ_ij · g_ij · ⟨∫ S R dλ⟩_ij
+//!
+//! with Ω_ij the exact solid angle of the pixel (its four corners
+//! undistorted into directions: two spherical triangles), θ_ij the angle of
+//! its centre's direction to the boresight, g_ij the camera's own flat, and
+//! ⟨·⟩ the mean over the `supersample`² points of the pixel, each seeing
+//! the screen interpolated bilinearly between pixel centres: a triangle
+//! blur one screen pixel wide, standing in for the optics' PSF, which keeps
+//! shifts smaller than the sample spacing visible (point samples of the
+//! screen's piecewise-constant image would alias them away). Without distortion A Ω cos θ is exactly the
+//! renderer's factor (`render::detector`: pupil area × exact Ω × dir.z), so
+//! the two agree. Then dark electrons, shot noise (Poisson), read noise
+//! (Gaussian), clipping at the full well, gain, bias, rounding and
+//! clipping at the largest DN.
+
+use rayon::prelude::*;
+
+use super::config::CameraTruth;
+use super::noise::Rng;
+use super::optics::{triangle_solid_angle, CameraOptics, Collimator};
+use super::screen::ScreenPhysics;
+
+/// Random stream of the PRNU map.
+const PRNU_STREAM: u64 = 1;
+/// Random streams of captures start here (+ capture index).
+const CAPTURE_STREAM: u64 = 1 << 32;
+
+/// A frame the screen showed during an exposure, with its share of it.
+#[derive(Debug, Clone)]
+pub struct WindowFrame<'a> {
+    /// Drive level per screen pixel.
+    pub levels: &'a [u16],
+    /// Fraction of the exposure it was up.
+    pub weight: f64,
+    /// Warm-up and drift factor while it was up.
+    pub warmup: f64,
+}
+
+/// Static camera tables.
+#[derive(Debug, Clone)]
+pub struct CameraModel {
+    pub cfg: CameraTruth,
+    pub optics: CameraOptics,
+    /// Screen position of each pixel corner, (w + 1) × (h + 1), row-major.
+    corners: Vec<[f64; 2]>,
+    /// A_pupil Ω cos θ per pixel, m² sr.
+    etendue: Vec<f64>,
+    /// Vignetting × PRNU.
+    flat: Vec<f32>,
+}
+
+impl CameraModel {
+    /// Builds the tables (once per facility).
+    pub fn new(cfg: &CameraTruth, collimator: &Collimator, seed: u64) -> CameraModel {
+        let optics = CameraOptics::from_config(cfg);
+        let [w, h] = cfg.resolution;
+        let tans: Vec<(f64, f64)> = (0..(w + 1) * (h + 1))
+            .into_par_iter()
+            .map(|k| optics.undistort_pixel((k % (w + 1)) as f64, (k / (w + 1)) as f64))
+            .collect();
+        let corners = tans
+            .par_iter()
+            .map(|&(x, y)| {
+                let (u, v) = collimator.tan_to_screen(x, y);
+                [u, v]
+            })
+            .collect();
+        let pupil = cfg.pupil_area();
+        let etendue = (0..w * h)
+            .into_par_iter()
+            .map(|k| {
+                let (i, j) = (k % w, k / w);
+                let c = |di: usize, dj: usize| {
+                    let (x, y) = tans[(j + dj) * (w + 1) + i + di];
+                    [x, y, 1.0]
+                };
+                let omega = triangle_solid_angle(c(0, 0), c(1, 0), c(1, 1))
+                    + triangle_solid_angle(c(0, 0), c(1, 1), c(0, 1));
+                let (x, y) = optics.undistort_pixel(i as f64 + 0.5, j as f64 + 0.5);
+                pupil * omega / (1.0 + x * x + y * y).sqrt()
+            })
+            .collect();
+        let flat = own_flat(cfg, seed);
+        CameraModel {
+            cfg: cfg.clone(),
+            optics,
+            corners,
+            etendue,
+            flat,
+        }
+    }
+
+    /// `(width, height)`.
+    pub fn size(&self) -> (usize, usize) {
+        (self.cfg.resolution[0], self.cfg.resolution[1])
+    }
+
+    /// Vignetting × PRNU, row-major.
+    pub fn flat(&self) -> &[f32] {
+        &self.flat
+    }
+
+    /// A_pupil Ω cos θ of each pixel, m² sr.
+    pub fn etendue(&self) -> &[f64] {
+        &self.etendue
+    }
+
+    /// Screen position seen at fractional position (a, b) ∈ [0, 1]² of
+    /// pixel (i, j): bilinear between the pixel's corners.
+    #[inline]
+    fn screen_point(&self, i: usize, j: usize, a: f64, b: f64) -> (f64, f64) {
+        let w1 = self.cfg.resolution[0] + 1;
+        let c00 = self.corners[j * w1 + i];
+        let c10 = self.corners[j * w1 + i + 1];
+        let c01 = self.corners[(j + 1) * w1 + i];
+        let c11 = self.corners[(j + 1) * w1 + i + 1];
+        let p = |k: usize| {
+            (1.0 - b) * ((1.0 - a) * c00[k] + a * c10[k]) + b * ((1.0 - a) * c01[k] + a * c11[k])
+        };
+        (p(0), p(1))
+    }
+
+    /// Noise-free electron rate of pixel (i, j) before the flat and the
+    /// etendue: the mean over its sample points of τ ⟨W ∫ S R dλ⟩ U.
+    fn mean_rate(&self, i: usize, j: usize, screen: &ScreenPhysics, frames: &[WindowFrame]) -> f64 {
+        let n = self.cfg.supersample;
+        let [sw, sh] = screen.config().resolution;
+        let mut sum = 0.0;
+        for sj in 0..n {
+            for si in 0..n {
+                let a = (si as f64 + 0.5) / n as f64;
+                let b = (sj as f64 + 0.5) / n as f64;
+                let (u, v) = self.screen_point(i, j, a, b);
+                if !(u >= 0.0 && v >= 0.0 && u < sw as f64 && v < sh as f64) {
+                    continue; // the screen's bezel: dark
+                }
+                let shown = bilinear(u, v, sw, sh, |p| {
+                    frames
+                        .iter()
+                        .map(|f| f.weight * f.warmup * screen.camera_rate[f.levels[p] as usize])
+                        .sum()
+                });
+                sum += shown * screen.uniformity(u, v);
+            }
+        }
+        sum / (n * n) as f64
+    }
+
+    /// Mean signal electrons per pixel (no dark, no noise, no clipping).
+    pub fn expected_electrons(
+        &self,
+        screen: &ScreenPhysics,
+        transmission: f64,
+        frames: &[WindowFrame],
+        exposure: f64,
+    ) -> Vec<f64> {
+        let (w, h) = self.size();
+        (0..w * h)
+            .into_par_iter()
+            .map(|k| {
+                let rate = self.mean_rate(k % w, k / w, screen, frames);
+                exposure * transmission * self.etendue[k] * self.flat[k] as f64 * rate
+            })
+            .collect()
+    }
+
+    /// One frame in DN: signal plus dark, noise (seeded by `seed` and
+    /// `index`), full well, gain, bias, quantisation and saturation.
+    pub fn capture(
+        &self,
+        screen: &ScreenPhysics,
+        transmission: f64,
+        frames: &[WindowFrame],
+        exposure: f64,
+        seed: u64,
+        index: u64,
+    ) -> Vec<f32> {
+        let c = &self.cfg;
+        let signal = self.expected_electrons(screen, transmission, frames, exposure);
+        let dark = c.dark_current * exposure;
+        let max_dn = c.max_dn();
+        signal
+            .into_par_iter()
+            .enumerate()
+            .map(|(k, s)| {
+                let mut rng = Rng::new(seed, CAPTURE_STREAM + index, k as u64);
+                let mean = s + dark;
+                let mut e = if c.shot_noise {
+                    rng.poisson(mean)
+                } else {
+                    mean
+                };
+                if c.read_noise > 0.0 {
+                    e += c.read_noise * rng.normal();
+                }
+                let e = e.clamp(0.0, c.full_well);
+                (e * c.gain + c.bias_dn).round().clamp(0.0, max_dn) as f32
+            })
+            .collect()
+    }
+}
+
+/// `value` of the screen pixels around continuous position (u, v),
+/// interpolated bilinearly between pixel centres (clamped at the edges).
+#[inline]
+fn bilinear(u: f64, v: f64, w: usize, h: usize, value: impl Fn(usize) -> f64) -> f64 {
+    let (x, y) = ((u - 0.5).max(0.0), (v - 0.5).max(0.0));
+    let (x0, y0) = ((x as usize).min(w - 1), (y as usize).min(h - 1));
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (a, b) = ((x - x0 as f64).min(1.0), (y - y0 as f64).min(1.0));
+    let row = |y: usize| (1.0 - a) * value(y * w + x0) + a * value(y * w + x1);
+    (1.0 - b) * row(y0) + b * row(y1)
+}
+
+/// The camera's own flat: quadratic vignetting (`vignetting` at the corner
+/// farthest from the principal point) × seeded PRNU (1 + prnu · N(0, 1)).
+fn own_flat(cfg: &CameraTruth, seed: u64) -> Vec<f32> {
+    let [w, h] = cfg.resolution;
+    let corner2 = [
+        (0.0, 0.0),
+        (w as f64, 0.0),
+        (0.0, h as f64),
+        (w as f64, h as f64),
+    ]
+    .iter()
+    .map(|(x, y)| (x - cfg.cx).powi(2) + (y - cfg.cy).powi(2))
+    .fold(0.0, f64::max)
+    .max(1.0);
+    (0..w * h)
+        .into_par_iter()
+        .map(|k| {
+            let (x, y) = ((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
+            let r2 = ((x - cfg.cx).powi(2) + (y - cfg.cy).powi(2)) / corner2;
+            let vignetting = 1.0 - cfg.vignetting * r2;
+            let prnu = if cfg.prnu > 0.0 {
+                (1.0 + cfg.prnu * Rng::new(seed, PRNU_STREAM, k as u64).normal()).max(0.0)
+            } else {
+                1.0
+            };
+            (vignetting * prnu) as f32
+        })
+        .collect()
+}
