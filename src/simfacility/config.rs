@@ -434,9 +434,13 @@ impl MeterTruth {
 
 /// One-line message of a TOML error: its line and what is wrong.
 fn toml_error(text: &str, e: &toml::de::Error) -> String {
-    let line = e
-        .span()
-        .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+    let line = e.span().map(|s| {
+        text.as_bytes()[..s.start.min(text.len())]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count()
+            + 1
+    });
     let msg = e.message().replace('\n', " ");
     match line {
         Some(l) => format!("line {l}: {msg}"),
