@@ -65,6 +65,12 @@ fn bad_values_name_their_key() {
             Some("[100000, 1080]"),
             "screen.resolution",
         ),
+        (
+            "screen",
+            "resolution",
+            Some("[16384, 16384]"),
+            "screen.resolution",
+        ),
         ("screen", "bits", Some("12"), "screen.bits"),
         ("screen", "refresh_hz", Some("0.0"), "screen.refresh_hz"),
         ("screen", "refresh_hz", Some("nan"), "screen.refresh_hz"),
@@ -138,6 +144,12 @@ fn bad_values_name_their_key() {
             Some("[1024, 0]"),
             "camera.resolution",
         ),
+        (
+            "camera",
+            "resolution",
+            Some("[8192, 8192]"),
+            "camera.resolution",
+        ),
         ("camera", "fx", Some("-5.0"), "camera.fx"),
         ("camera", "cy", Some("1e9"), "camera.cy"),
         ("camera", "k2", Some("nan"), "camera.k2"),
@@ -204,6 +216,24 @@ fn bad_values_name_their_key() {
             "{section}.{key} = {value:?}: {err}"
         );
     }
+}
+
+#[test]
+fn frame_history_memory_is_bounded() {
+    // 64 frames of an 8K screen would be 4 GiB of kept frames.
+    let text = with("screen", "history_frames", Some("64"))
+        .replace("resolution = [1920, 1080]", "resolution = [7680, 4320]");
+    let err = SimFacilityConfig::parse(&text, "sim.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("screen.history_frames"), "{err}");
+    let text = with("screen", "history_frames", Some("4"))
+        .replace("resolution = [1920, 1080]", "resolution = [7680, 4320]")
+        .replace(
+            "spot_center_px = [960.0, 540.0]",
+            "spot_center_px = [3840.0, 2160.0]",
+        );
+    SimFacilityConfig::parse(&text, "sim.toml").unwrap();
 }
 
 #[test]

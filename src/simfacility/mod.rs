@@ -521,7 +521,7 @@ impl RecordingScreen {
 impl Display for RecordingScreen {
     fn present(&mut self, frame: &[u32]) -> Result<Instant> {
         let at = self.screen.present(frame)?;
-        if self.shown % self.every == 0 {
+        if self.shown.is_multiple_of(self.every) {
             let f = &self.screen.facility;
             let shot = f.capture_last(f.model.cfg.camera.exposure)?;
             let path = self.dir.join(format!("frame_{:06}.png", self.shown));
