@@ -68,6 +68,26 @@ fn serial_meter_reads_the_simulated_meter_over_a_pty() {
 }
 
 #[test]
+fn a_sim_meter_table_becomes_a_serial_meter_on_a_pty() {
+    let mut cfg = bundled();
+    cfg.meter.noise = 0.0;
+    cfg.screen.warmup_amplitude = 0.0;
+    cfg.screen.drift_per_hour = 0.0;
+    let facility = SimFacility::new(cfg).unwrap();
+    let mut table = meter_config(Path::new("/unused"), "scalar", 0.5);
+    table.kind = optistim::instruments::config::MeterKind::Sim;
+    let (pty, serial) = PtyMeter::for_config(&facility, &table).unwrap();
+    assert_eq!(serial.port.as_deref(), Some(pty.path()));
+    let mut meter = open_spot_meter(&serial, Path::new(".")).unwrap();
+    let mut screen = facility.display();
+    let (w, h) = screen.size();
+    screen.present(&vec![encode_grey(200, 8); w * h]).unwrap();
+    let got = meter.measure().unwrap().value;
+    let expected = facility.true_meter_reading(200);
+    assert!((got / expected - 1.0).abs() < 1e-12, "{got} vs {expected}");
+}
+
+#[test]
 fn spectroradiometer_over_a_pty_sends_the_screen_spectrum() {
     let mut cfg = bundled();
     cfg.meter.noise = 0.0;

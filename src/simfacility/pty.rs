@@ -15,7 +15,7 @@ use serialport::{SerialPort, TTYPort};
 
 use super::SimFacility;
 use crate::error::{Error, Result};
-use crate::instruments::config::ReplySpec;
+use crate::instruments::config::{MeterKind, ReplySpec, SpotMeterConfig};
 use crate::instruments::spot_meter::serve;
 
 /// The serving thread and the pty pair. Stops and joins on drop.
@@ -67,6 +67,21 @@ impl PtyMeter {
             thread: Some(thread),
             _slave: slave,
         })
+    }
+
+    /// Serves the meter a `[calibrate.meter]` table describes (its command,
+    /// reply format and unit scale) and returns that table turned into a
+    /// serial meter on the pty (`kind = "serial"`, `port` = the slave), to
+    /// open with [`open_spot_meter`](crate::instruments::config::open_spot_meter).
+    pub fn for_config(
+        facility: &SimFacility,
+        meter: &SpotMeterConfig,
+    ) -> Result<(PtyMeter, SpotMeterConfig)> {
+        let pty = PtyMeter::start(facility, &meter.command, &meter.reply, meter.unit_scale)?;
+        let mut serial = meter.clone();
+        serial.kind = MeterKind::Serial;
+        serial.port = Some(pty.path.clone());
+        Ok((pty, serial))
     }
 
     /// The device to open as the meter's `port`.
