@@ -219,6 +219,16 @@ fn bad_values_name_their_key() {
 }
 
 #[test]
+fn a_distortion_that_folds_over_is_refused() {
+    // k1 = −2 over a ±60° field: r (1 − 2 r²) turns back at r = 0.41.
+    let text = with("camera", "k1", Some("-2.0")).replace("fx = 10247.4", "fx = 300.0");
+    let mut cfg = SimFacilityConfig::parse(&text, "sim.toml").unwrap();
+    cfg.resolve_paths(&Path::new(env!("CARGO_MANIFEST_DIR")).join("configs"));
+    let err = SimFacility::new(cfg).err().expect("refused").to_string();
+    assert!(err.contains("camera.k1") && err.contains("folds"), "{err}");
+}
+
+#[test]
 fn frame_history_memory_is_bounded() {
     // 64 frames of an 8K screen would be 4 GiB of kept frames.
     let text = with("screen", "history_frames", Some("64"))

@@ -25,6 +25,7 @@ use super::config::CameraTruth;
 use super::noise::Rng;
 use super::optics::{triangle_solid_angle, CameraOptics, Collimator};
 use super::screen::ScreenPhysics;
+use crate::error::{Error, Result};
 
 /// Random stream of the PRNU map.
 const PRNU_STREAM: u64 = 1;
@@ -56,14 +57,16 @@ pub struct CameraModel {
 }
 
 impl CameraModel {
-    /// Builds the tables (once per facility).
-    pub fn new(cfg: &CameraTruth, collimator: &Collimator, seed: u64) -> CameraModel {
+    /// Builds the tables (once per facility). A distortion that cannot be
+    /// inverted somewhere on the detector is an error naming the corner.
+    pub fn new(cfg: &CameraTruth, collimator: &Collimator, seed: u64) -> Result<CameraModel> {
         let optics = CameraOptics::from_config(cfg);
         let [w, h] = cfg.resolution;
         let tans: Vec<(f64, f64)> = (0..(w + 1) * (h + 1))
             .into_par_iter()
             .map(|k| optics.undistort_pixel((k % (w + 1)) as f64, (k / (w + 1)) as f64))
             .collect();
+        check_inverse(&optics, &tans, w)?;
         let corners = tans
             .par_iter()
             .map(|&(x, y)| {
@@ -87,13 +90,13 @@ impl CameraModel {
             })
             .collect();
         let flat = own_flat(cfg, seed);
-        CameraModel {
+        Ok(CameraModel {
             cfg: cfg.clone(),
             optics,
             corners,
             etendue,
             flat,
-        }
+        })
     }
 
     /// `(width, height)`.
@@ -203,6 +206,27 @@ impl CameraModel {
                 (e * c.gain + c.bias_dn).round().clamp(0.0, max_dn) as f32
             })
             .collect()
+    }
+}
+
+/// Every corner's direction must map back onto its pixel position: a
+/// distortion that folds over has no inverse there.
+fn check_inverse(optics: &CameraOptics, tans: &[(f64, f64)], w: usize) -> Result<()> {
+    let bad = tans.par_iter().enumerate().find_any(|(k, &(x, y))| {
+        let (u, v) = optics.project(x, y);
+        let (i, j) = ((k % (w + 1)) as f64, (k / (w + 1)) as f64);
+        !((u - i).abs() < 1e-6 && (v - j).abs() < 1e-6)
+    });
+    match bad {
+        Some((k, _)) => Err(Error::invalid(
+            "camera.k1",
+            format!(
+                "the distortion (k1, k2, p1, p2) cannot be inverted at pixel corner ({}, {}): it folds over on the detector",
+                k % (w + 1),
+                k / (w + 1)
+            ),
+        )),
+        None => Ok(()),
     }
 }
 

@@ -94,7 +94,7 @@ impl SimFacility {
         let meter = MeterResponse::from_config(&cfg.meter)?;
         let screen = ScreenPhysics::new(&cfg.screen, &response, &meter)?;
         let collimator = Collimator::from_config(&cfg.screen, &cfg.collimator);
-        let camera = CameraModel::new(&cfg.camera, &collimator, cfg.seed);
+        let camera = CameraModel::new(&cfg.camera, &collimator, cfg.seed)?;
         let spot = spot_pixels(&cfg);
         let [w, h] = cfg.screen.resolution;
         let state = State {
