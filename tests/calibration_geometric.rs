@@ -411,3 +411,79 @@ mod props {
         }
     }
 }
+
+/// End to end on the simulated facility (configs/simfacility.toml: its
+/// collimator distortion and misalignment, the camera's intrinsics,
+/// distortion, vignetting, PRNU and noise): the geometry recovered against
+/// the facility's truth accessor, over the part of the screen the camera
+/// sees.
+#[test]
+fn simulated_facility_end_to_end() {
+    use optistim::simfacility::SimFacility;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let sim = SimFacility::load(root.join("configs/simfacility.toml")).unwrap();
+    let cam = sim.config().camera.clone();
+    let dir = tempfile::tempdir().unwrap();
+    // The intrinsics file a camera calibration would give (OpenCV's pixel
+    // convention: centres at integers).
+    let intrinsics = dir.path().join("intrinsics.toml");
+    std::fs::write(
+        &intrinsics,
+        format!(
+            "fx = {}\nfy = {}\ncx = {}\ncy = {}\nk1 = {}\nk2 = {}\np1 = {}\np2 = {}\n",
+            cam.fx,
+            cam.fy,
+            cam.cx - 0.5,
+            cam.cy - 0.5,
+            cam.k1,
+            cam.k2,
+            cam.p1,
+            cam.p2
+        ),
+    )
+    .unwrap();
+    let mut cfg = GeometricConfig::with_intrinsics(&intrinsics);
+    cfg.exposure = cam.exposure;
+    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let t0 = Instant::now();
+    let report = calibrate_geometric(&mut display, &mut camera, &cfg, dir.path()).unwrap();
+    let elapsed = t0.elapsed().as_secs_f64();
+    let g = GeometryCalibration::load(&report.geometry_csv, (1920, 1080)).unwrap();
+    let [w, h] = cam.resolution;
+    let (mut ss, mut n, mut max) = (0.0, 0usize, 0.0f64);
+    for j in 0..=135 {
+        for i in 0..=240 {
+            let (u, v) = (i as f64 * 8.0, j as f64 * 8.0);
+            let (px, py) = sim.true_camera_pixel(u, v);
+            if px < 40.0 || py < 40.0 || px > w as f64 - 40.0 || py > h as f64 - 40.0 {
+                continue;
+            }
+            let t = sim.true_geometry(u, v);
+            let d = g.direction(u, v);
+            let e = (d[0] - t.0).hypot(d[1] - t.1) * cam.fx;
+            ss += e * e;
+            n += 1;
+            max = max.max(e);
+        }
+    }
+    let rms = (ss / n as f64).sqrt();
+    let arcsec = 206_264.806 / cam.fx;
+    eprintln!(
+        "simulated facility: geometry error vs truth RMS {rms:.4} camera px ({:.3} arcsec), max {max:.4} px \
+         ({:.3} arcsec) over {n} points the camera sees; fit residual RMS {:.4} px ({:.3} arcsec), max {:.4} px; \
+         {} dots matched, {} used of {} shown; anchors {} of {}; {elapsed:.1} s",
+        rms * arcsec,
+        max * arcsec,
+        report.rms_px,
+        report.rms_arcsec,
+        report.max_px,
+        report.dots_matched,
+        report.dots_used,
+        report.dots_shown,
+        report.anchors_identified,
+        report.anchors_shown
+    );
+    assert!(n > 10_000, "{n} points in view");
+    assert!(rms <= 0.05, "geometry RMS error {rms} camera px");
+    assert!(report.dots_used > 200);
+}
