@@ -213,6 +213,7 @@ fn config(dir: &Path) -> GeometricConfig {
     let mut cfg = GeometricConfig::with_intrinsics(write_intrinsics(dir));
     cfg.spacing_px = 48;
     cfg.radius_px = 3.0;
+    cfg.settle = 0.0;
     cfg
 }
 
@@ -444,6 +445,7 @@ fn simulated_facility_end_to_end() {
     .unwrap();
     let mut cfg = GeometricConfig::with_intrinsics(&intrinsics);
     cfg.exposure = cam.exposure;
+    cfg.settle = 0.0;
     let (mut display, mut camera) = (sim.display(), sim.camera());
     let t0 = Instant::now();
     let report = calibrate_geometric(&mut display, &mut camera, &cfg, dir.path()).unwrap();

@@ -61,8 +61,10 @@ pub struct GeometricConfig {
     /// Camera exposure, s (0 < exposure ≤ 100).
     #[serde(default = "default_exposure")]
     pub exposure: f64,
-    /// Wait after showing a pattern before capturing it, s (0–60).
-    #[serde(default)]
+    /// Wait after showing a pattern before capturing it, s (0–60): the
+    /// display's latency and the panel's response (the simulated facility
+    /// needs none).
+    #[serde(default = "default_settle")]
     pub settle: f64,
     /// Camera intrinsics file (OpenCV K and distortion).
     pub intrinsics: PathBuf,
@@ -112,6 +114,9 @@ fn default_bits() -> u32 {
 fn default_exposure() -> f64 {
     0.01
 }
+fn default_settle() -> f64 {
+    0.1
+}
 fn default_gate() -> f64 {
     0.3
 }
@@ -144,7 +149,7 @@ impl GeometricConfig {
             level: default_level(),
             bits: default_bits(),
             exposure: default_exposure(),
-            settle: 0.0,
+            settle: default_settle(),
             intrinsics: intrinsics.into(),
             gate: default_gate(),
             iterations: default_iterations(),
