@@ -115,12 +115,12 @@ fn card(text: &str) -> String {
 fn fits(cards: &[String], data: &[u8]) -> Vec<u8> {
     let mut h: String = cards.concat();
     h.push_str(&card("END"));
-    while h.len() % 2880 != 0 {
+    while !h.len().is_multiple_of(2880) {
         h.push(' ');
     }
     let mut out = h.into_bytes();
     out.extend_from_slice(data);
-    while out.len() % 2880 != 0 {
+    while !out.len().is_multiple_of(2880) {
         out.push(0);
     }
     out
@@ -586,4 +586,73 @@ fn sim_kind_and_missing_dir_are_clear_errors() {
         e.contains("calibrate.camera.dir") && e.contains("nope"),
         "{e}"
     );
+}
+
+// ---------- intrinsics ----------
+
+mod intrinsics {
+    use glam::DVec3;
+    use optistim::instruments::intrinsics::CameraIntrinsics;
+    use std::path::Path;
+
+    const FILE: &str = "width = 1024\nheight = 768\n\
+        camera_matrix = [[2400.0, 0.0, 511.5], [0.0, 2410.0, 383.5], [0.0, 0.0, 1.0]]\n\
+        distortion = [-0.12, 0.03, 1e-4, -2e-4, 0.01]\n";
+
+    #[test]
+    fn brown_conrady_forward_and_inverse() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("k.toml");
+        std::fs::write(&p, FILE).unwrap();
+        let k = CameraIntrinsics::load(&p).unwrap();
+        // The boresight lands on OpenCV's (cx, cy), i.e. this crate's +0.5.
+        let (u, v) = k.direction_to_pixel(DVec3::Z).unwrap();
+        assert_eq!((u, v), (512.0, 384.0));
+        for &(x, y) in &[(0.1, -0.05), (-0.2, 0.15), (0.0, 0.18), (0.21, 0.16)] {
+            // OpenCV's model written out here, independently.
+            let (k1, k2, p1, p2, k3) = (-0.12, 0.03, 1e-4, -2e-4, 0.01);
+            let r2: f64 = x * x + y * y;
+            let rad = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2;
+            let xd = x * rad + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+            let yd = y * rad + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+            let want = (2400.0 * xd + 511.5 + 0.5, 2410.0 * yd + 383.5 + 0.5);
+            let got = k.direction_to_pixel(DVec3::new(x, y, 1.0) * 3.0).unwrap();
+            assert!((got.0 - want.0).abs() < 1e-9 && (got.1 - want.1).abs() < 1e-9);
+            let d = k.pixel_to_direction(want.0, want.1).unwrap();
+            let truth = DVec3::new(x, y, 1.0).normalize();
+            assert!((d - truth).length() < 1e-11, "{x} {y}: {d}");
+        }
+        assert!(k.direction_to_pixel(-DVec3::Z).is_none());
+        let j = "{\"width\": 1024, \"height\": 768, \"camera_matrix\": [[2400.0, 0.0, 511.5], [0.0, 2410.0, 383.5], [0.0, 0.0, 1.0]], \"distortion\": [-0.12, 0.03, 1e-4, -2e-4, 0.01]}";
+        assert_eq!(
+            CameraIntrinsics::parse(j, true, Path::new("k.json")).unwrap(),
+            k
+        );
+    }
+
+    #[test]
+    fn bad_intrinsics_name_file_and_key() {
+        let cases = [
+            ("2400.0, 0.0, 511.5", "-1.0, 0.0, 511.5", "camera_matrix"),
+            ("2400.0, 0.0, 511.5", "2400.0, 0.5, 511.5", "skew"),
+            ("-0.12,", "nan,", "distortion"),
+            ("width = 1024", "width = 0", "width"),
+            ("0.01]", "0.01, 0.0]", "distortion"),
+            ("height = 768", "height = 768\nfov = 3", "fov"),
+            (
+                "[0.0, 0.0, 1.0]]",
+                "[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]",
+                "camera_matrix",
+            ),
+            ("[0.0, 0.0, 1.0]]", "[0.0, 0.0]]", "camera_matrix"),
+        ];
+        for (from, to, key) in cases {
+            let text = FILE.replacen(from, to, 1);
+            assert_ne!(text, FILE);
+            let e = CameraIntrinsics::parse(&text, false, Path::new("cam/k.toml"))
+                .map(|_| format!("{to}: accepted"))
+                .unwrap_or_else(|e| e.to_string());
+            assert!(e.contains("cam/k.toml") && e.contains(key), "{key}: {e}");
+        }
+    }
 }

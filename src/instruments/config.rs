@@ -51,6 +51,7 @@ use super::camera::{CommandCamera, FilesCamera};
 use super::spot_meter::SerialSpotMeter;
 use super::{Camera, SpotMeter};
 use crate::error::{Error, Result};
+use crate::radiometry::spectrum::Table;
 
 /// Key prefix of the meter table, for error messages.
 pub const METER_KEY: &str = "calibrate.meter";
@@ -300,14 +301,29 @@ pub struct CameraConfig {
     /// DN at or above which a pixel is saturated.
     pub saturation_dn: f64,
     /// Expected `[width, height]`; every frame is checked against it.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "exact_pair")]
     pub resolution: Option<[usize; 2]>,
     /// Dark frame: a file, or `"capture"`.
     #[serde(default)]
     pub dark: Option<DarkSource>,
-    /// Camera intrinsics file (OpenCV K and distortion; see docs/INSTRUMENTS.md).
+    /// Camera intrinsics file (see [`intrinsics`](super::intrinsics)).
     #[serde(default)]
     pub intrinsics: Option<PathBuf>,
+}
+
+/// `[width, height]`, refusing other lengths (a fixed-size array would
+/// silently drop a third number).
+fn exact_pair<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Option<[usize; 2]>, D::Error> {
+    use serde::de::Error as _;
+    let v: Option<Vec<usize>> = Option::deserialize(d)?;
+    v.map(|v| {
+        let n = v.len();
+        v.try_into()
+            .map_err(|_| D::Error::custom(format!("expected [width, height], found {n} numbers")))
+    })
+    .transpose()
 }
 
 fn default_camera_name() -> String {
@@ -402,7 +418,16 @@ impl SpotMeterConfig {
         self.reply.validate(&k("reply"))
     }
 
-    /// Makes a relative `spectral_response` (and `port`) relative to `dir`.
+    /// The meter's spectral response M(λ) from `spectral_response`, if
+    /// given (CSV `wavelength_nm,response`; the table holds metres).
+    pub fn load_spectral_response(&self) -> Result<Option<Table>> {
+        self.spectral_response
+            .as_deref()
+            .map(Table::from_csv)
+            .transpose()
+    }
+
+    /// Makes a relative `spectral_response` relative to `dir`.
     pub fn resolve_paths(&mut self, dir: &Path) {
         if let Some(p) = &mut self.spectral_response {
             fix(p, dir);
@@ -747,6 +772,7 @@ dark = "capture"
                 "resolution = [100000, 1000]",
                 "calibrate.camera.resolution",
             ),
+            ("[1024, 1024]", "[1024, 1024, 3]", "width, height"),
             ("cal_{pattern}", "cal_{level}", "calibrate.camera.pattern"),
             ("cal_{pattern}", "../{pattern}", "calibrate.camera.pattern"),
             ("cal_{pattern}", "cal", "calibrate.camera.pattern"),
