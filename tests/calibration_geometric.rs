@@ -75,13 +75,23 @@ fn write_intrinsics(dir: &Path) -> std::path::PathBuf {
     let p = dir.join("intrinsics.toml");
     std::fs::write(
         &p,
-        format!(
-            "fx = {}\nfy = {}\ncx = {}\ncy = {}\nk1 = {}\nk2 = {}\np1 = {}\np2 = {}\n",
-            CAM.fx, CAM.fy, CAM.cx, CAM.cy, CAM.k1, CAM.k2, CAM.p1, CAM.p2
+        intrinsics_toml(
+            CAMERA,
+            [CAM.fx, CAM.fy, CAM.cx, CAM.cy],
+            [CAM.k1, CAM.k2, CAM.p1, CAM.p2],
         ),
     )
     .unwrap();
     p
+}
+
+/// An intrinsics file (docs/INSTRUMENTS.md), K in OpenCV's convention.
+fn intrinsics_toml(size: (usize, usize), k: [f64; 4], d: [f64; 4]) -> String {
+    format!(
+        "width = {}\nheight = {}\ncamera_matrix = [[{}, 0.0, {}], [0.0, {}, {}], [0.0, 0.0, 1.0]]\n\
+         distortion = [{}, {}, {}, {}, 0.0]\n",
+        size.0, size.1, k[0], k[2], k[1], k[3], d[0], d[1], d[2], d[3]
+    )
 }
 
 /// What the screen shows, shared by the display and camera handles.
@@ -117,6 +127,8 @@ struct TestCamera {
     spurious: Vec<(&'static str, [f64; 4])>,
     /// Camera focal-length factor (1: as CAM; larger sees less screen).
     zoom: f64,
+    /// DN at which a pixel saturates.
+    saturation: f32,
 }
 
 impl TestCamera {
@@ -126,6 +138,7 @@ impl TestCamera {
             dropped: |_, _| false,
             spurious: Vec::new(),
             zoom: 1.0,
+            saturation: 1e9,
         }
     }
 }
@@ -201,7 +214,7 @@ impl Camera for TestCamera {
             height: h,
             data: img.iter().map(|&v| (v + 100.0) as f32).collect(),
             exposure_s: request.exposure_s,
-            saturation_dn: 1e9,
+            saturation_dn: self.saturation,
         })
     }
     fn describe(&self) -> String {
@@ -354,6 +367,50 @@ fn too_few_dots_is_a_clear_error() {
 }
 
 #[test]
+fn bad_inputs_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let shared = Arc::new(Mutex::new(Shared::default()));
+    let mut display = TestDisplay(shared.clone());
+    let mut camera = TestCamera::new(shared);
+    let mut cfg = config(dir.path());
+    // No intrinsics.
+    let mut none = cfg.clone();
+    none.intrinsics = None;
+    let e = calibrate_geometric(&mut display, &mut camera, &none, dir.path()).unwrap_err();
+    assert!(
+        e.to_string().contains("calibrate.geometric.intrinsics"),
+        "{e}"
+    );
+    // Intrinsics of another camera.
+    let other = dir.path().join("other.toml");
+    std::fs::write(
+        &other,
+        intrinsics_toml((640, 480), [500.0, 500.0, 320.0, 240.0], [0.0; 4]),
+    )
+    .unwrap();
+    let mut wrong = cfg.clone();
+    wrong.intrinsics = Some(other);
+    let e = calibrate_geometric(&mut display, &mut camera, &wrong, dir.path()).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("intrinsics are for a 640×480 camera"),
+        "{e}"
+    );
+    // Saturated dots name the pattern.
+    camera.saturation = 2000.0;
+    let e = calibrate_geometric(&mut display, &mut camera, &cfg, dir.path()).unwrap_err();
+    assert!(
+        e.to_string().contains("pattern geometric_grid") && e.to_string().contains("saturated"),
+        "{e}"
+    );
+    // A bad configuration value is refused before anything is shown.
+    camera.saturation = 1e9;
+    cfg.gate = 0.0;
+    let e = calibrate_geometric(&mut display, &mut camera, &cfg, dir.path()).unwrap_err();
+    assert!(e.to_string().contains("calibrate.geometric.gate"), "{e}");
+}
+
+#[test]
 fn config_bad_values_are_named() {
     let base = "intrinsics = \"i.toml\"\n";
     let cfg: GeometricConfig = toml::from_str(base).unwrap();
@@ -428,18 +485,13 @@ fn simulated_facility_end_to_end() {
     // The intrinsics file a camera calibration would give (OpenCV's pixel
     // convention: centres at integers).
     let intrinsics = dir.path().join("intrinsics.toml");
+    let [cw, ch] = cam.resolution;
     std::fs::write(
         &intrinsics,
-        format!(
-            "fx = {}\nfy = {}\ncx = {}\ncy = {}\nk1 = {}\nk2 = {}\np1 = {}\np2 = {}\n",
-            cam.fx,
-            cam.fy,
-            cam.cx - 0.5,
-            cam.cy - 0.5,
-            cam.k1,
-            cam.k2,
-            cam.p1,
-            cam.p2
+        intrinsics_toml(
+            (cw, ch),
+            [cam.fx, cam.fy, cam.cx - 0.5, cam.cy - 0.5],
+            [cam.k1, cam.k2, cam.p1, cam.p2],
         ),
     )
     .unwrap();
