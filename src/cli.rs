@@ -1,5 +1,7 @@
 //! The subcommands' bodies: argument handling around the library.
 
+pub mod calibrate;
+
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

@@ -11,10 +11,11 @@
 //! | [`radiometry`] | how light is made and reflected: solar spectra, reflectance models, band integrals |
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
-//! | [`calibration`] | the screen calibration routines: dot patterns → geometry file, ... |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
+//! | [`calibration`] | `optistim calibrate`: the screen's LUT, flat field and verification, measured through the instruments |
 //! | [`simfacility`] | a seeded physics model of screen, collimator, camera and spot meter: the truth to rehearse calibration and `run` on |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
+//! | [`figures`] | small PNG figures for reports: curves with residuals, heatmaps, quivers |
 //!
 //! Conventions (SI units, OpenCV camera frame, scalar-first quaternions,
 //! pixel centres at +0.5) are described in `docs/CONVENTIONS.md`.
@@ -25,6 +26,7 @@
 pub mod calibration;
 pub mod error;
 pub mod facility;
+pub mod figures;
 pub mod instruments;
 pub mod radiometry;
 pub mod render;

@@ -1,4 +1,4 @@
-//! `optistim` command line: render, run, bench, validate.
+//! `optistim` command line: render, run, calibrate, bench, validate.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -67,6 +67,10 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Calibrate the facility's screen: `radiometric` (display LUT),
+    /// `flat` (flat field), `geometric` (geometry file), `verify`
+    /// (docs/CALIBRATION.md).
+    Calibrate(cli::calibrate::CalibrateArgs),
     /// Validate against real flight images.
     #[command(subcommand)]
     Validate(ValidateCommand),
@@ -102,6 +106,7 @@ fn main() -> ExitCode {
     let args = Args::parse();
     let result = match args.command {
         Command::Run(args) => cli::run(&args),
+        Command::Calibrate(args) => cli::calibrate::calibrate(&args),
         Command::Render {
             scene,
             out,

@@ -94,6 +94,10 @@ pub struct FacilityConfig {
     /// Timing.
     #[serde(default)]
     pub timing: TimingConfig,
+    /// `[calibrate]`: read by `optistim calibrate`
+    /// ([`calibration::config`](crate::calibration::config)), ignored here.
+    #[serde(default, rename = "calibrate")]
+    pub _calibrate: Option<toml::Value>,
 }
 
 /// `[scenario]`

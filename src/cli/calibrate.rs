@@ -1,0 +1,424 @@
+//! `optistim calibrate radiometric|flat|geometric|verify`: builds the
+//! instruments (the simulated facility's, or the real window display and
+//! the instruments of `[calibrate]`), opens the campaign's checkpoint and
+//! runs one routine of [`optistim::calibration`].
+
+use std::io::{BufRead, Write};
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+
+use optistim::calibration::checkpoint::{fingerprint, Checkpoint};
+use optistim::calibration::config::{calibrate_table, CalibrateConfig};
+use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
+use optistim::calibration::{flat, geometric, radiometric, sleep, verify, Instruments};
+use optistim::facility::config::FacilityConfig;
+use optistim::facility::display::{Display, WindowDisplay, WindowOptions};
+use optistim::facility::geometry::GeometryCalibration;
+use optistim::facility::lut::{DisplayLut, FlatField};
+use optistim::instruments::config::{open_camera, open_spot_meter, DarkSource};
+use optistim::instruments::intrinsics::CameraIntrinsics;
+use optistim::instruments::{Camera, CaptureRequest, SpotMeter};
+use optistim::radiometry::spectrum::Table;
+use optistim::scene::Scene;
+use optistim::simfacility::SimFacility;
+
+/// Which routine.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Routine {
+    Radiometric,
+    Flat,
+    Geometric,
+    Verify,
+}
+
+/// Arguments of `optistim calibrate`.
+#[derive(clap::Args)]
+pub struct CalibrateArgs {
+    /// The routine to run.
+    #[arg(value_enum)]
+    pub routine: Routine,
+    /// Facility file (TOML) with a `[calibrate]` section.
+    pub facility: PathBuf,
+    /// Calibrate the simulated facility of this file instead of the real
+    /// screen and instruments (docs/SIMFACILITY.md).
+    #[arg(long)]
+    pub sim_facility: Option<PathBuf>,
+    /// Output directory (default: `calibrate.out_dir`).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Continue the campaign recorded in the output directory's checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+}
+
+/// The instruments of one campaign.
+struct Rig {
+    display: Box<dyn Display>,
+    camera: Box<dyn Camera>,
+    meter: Option<Box<dyn SpotMeter>>,
+    sim: Option<SimFacility>,
+}
+
+fn open_rig(args: &CalibrateArgs, fac: &FacilityConfig, cfg: &CalibrateConfig) -> Result<Rig> {
+    let base = args.facility.parent().unwrap_or(Path::new("."));
+    if let Some(path) = &args.sim_facility {
+        let sim = SimFacility::load(path)?;
+        if sim.config().screen.bits != fac.drive.bits || {
+            let [w, h] = sim.config().screen.resolution;
+            (w, h) != fac.screen_size()
+        } {
+            bail!(
+                "{}: the simulated screen differs from the facility file's screen (resolution, bits)",
+                path.display()
+            );
+        }
+        return Ok(Rig {
+            display: Box::new(sim.display()),
+            camera: Box::new(sim.camera()),
+            meter: cfg
+                .meter
+                .as_ref()
+                .map(|_| Box::new(sim.meter()) as Box<dyn SpotMeter>),
+            sim: Some(sim),
+        });
+    }
+    let (w, h) = fac.screen_size();
+    let display = WindowDisplay::open(&WindowOptions {
+        monitor: fac.screen.monitor.clone(),
+        resolution: Some((w, h)),
+        title: "optistim calibrate".into(),
+    })?;
+    let camera = open_camera(&cfg.camera, base)?;
+    let meter = match &cfg.meter {
+        Some(m) => Some(open_spot_meter(m, base)?),
+        None => None,
+    };
+    Ok(Rig {
+        display: Box::new(display),
+        camera,
+        meter,
+        sim: None,
+    })
+}
+
+/// Asks the operator to do something and waits for Enter.
+fn ask(what: &str) -> optistim::Result<()> {
+    eprint!("optistim calibrate: {what}, then press Enter ");
+    std::io::stderr().flush().ok();
+    let mut line = String::new();
+    std::io::stdin()
+        .lock()
+        .read_line(&mut line)
+        .map_err(|e| optistim::Error::Other(format!("waiting for the operator: {e}")))?;
+    Ok(())
+}
+
+/// The camera's dark frame: a file, or one captured with the camera covered.
+fn dark_frame(cfg: &CalibrateConfig, rig: &mut Rig) -> Result<Option<Vec<f32>>> {
+    match &cfg.camera.dark {
+        None => Ok(None),
+        Some(DarkSource::File(p)) => {
+            let f = optistim::instruments::frame::read_frame(p)?;
+            Ok(Some(f.2))
+        }
+        Some(DarkSource::Capture) => {
+            if rig.sim.is_some() {
+                bail!("calibrate.camera.dark = \"capture\" needs an operator to cover the camera; the simulated facility has none (leave `dark` out: its bias is known)");
+            }
+            ask("cover the camera (no light at all) for its dark frame")?;
+            let f = rig.camera.capture(&CaptureRequest {
+                pattern: "dark".into(),
+                exposure_s: cfg.camera.exposure,
+            })?;
+            ask("uncover the camera")?;
+            Ok(Some(f.data))
+        }
+    }
+}
+
+/// `optistim calibrate`.
+pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
+    let fac = FacilityConfig::load(&args.facility)?;
+    let bits = fac.drive.bits;
+    let mut cfg = CalibrateConfig::load(&args.facility, bits)?;
+    if let Some(out) = &args.out {
+        cfg.out_dir = out.clone();
+    }
+    std::fs::create_dir_all(&cfg.out_dir)
+        .with_context(|| format!("creating {}", cfg.out_dir.display()))?;
+    let text = std::fs::read_to_string(&args.facility)?;
+    let table = calibrate_table(&text, &args.facility)?;
+    let name = match args.routine {
+        Routine::Radiometric => radiometric::ROUTINE,
+        Routine::Flat => flat::ROUTINE,
+        Routine::Geometric => "geometric",
+        Routine::Verify => verify::ROUTINE,
+    };
+    let fp = fingerprint(&table, name, fac.screen_size(), bits);
+    let mut rig = open_rig(args, &fac, &cfg)?;
+    if args.routine == Routine::Geometric {
+        return run_geometric(&cfg, &args.facility, &mut rig);
+    }
+    let ckpt_path = cfg.out_dir.join(format!("{name}.checkpoint.jsonl"));
+    let mut ckpt = Checkpoint::open(&ckpt_path, &fp, name, args.resume)?;
+    if !ckpt.is_empty() {
+        eprintln!(
+            "optistim calibrate: resuming {} measurements from {}",
+            ckpt.len(),
+            ckpt_path.display()
+        );
+    }
+    let dark = dark_frame(&cfg, &mut rig)?;
+    let sim = rig.sim.clone();
+    let mut wait = move |s: f64| match &sim {
+        Some(f) => f.advance(s),
+        None => sleep(s),
+    };
+    let mut inst = Instruments {
+        display: rig.display.as_mut(),
+        camera: rig.camera.as_mut(),
+        meter: rig.meter.as_mut().map(|m| m.as_mut() as &mut dyn SpotMeter),
+        wait: &mut wait,
+    };
+    match args.routine {
+        Routine::Radiometric => {
+            run_radiometric(&fac, &cfg, &args.facility, &mut inst, &mut ckpt, dark)
+        }
+        Routine::Flat => run_flat(&fac, &cfg, rig.sim.as_ref(), &mut inst, &mut ckpt, dark),
+        Routine::Verify => run_verify(&fac, &cfg, &mut inst, &mut ckpt, dark),
+        Routine::Geometric => unreachable!("handled above"),
+    }
+}
+
+fn run_radiometric(
+    fac: &FacilityConfig,
+    cfg: &CalibrateConfig,
+    facility: &Path,
+    inst: &mut Instruments,
+    ckpt: &mut Checkpoint,
+    dark: Option<Vec<f32>>,
+) -> Result<()> {
+    let scene = Scene::from_file(&fac.scenario.scene)?;
+    let meter_response = match cfg
+        .meter
+        .as_ref()
+        .and_then(|m| m.spectral_response.as_ref())
+    {
+        Some(p) => Some(Table::from_csv(p)?),
+        None => None,
+    };
+    let screen_spectrum = match &cfg.screen_spectrum {
+        Some(p) => Some(table_spectrum(&Table::from_csv(p)?)),
+        None => None,
+    };
+    let mut power = |on: bool| {
+        if on {
+            ask("switch the screen back on")
+        } else {
+            ask("switch the screen off (or cover it) for the ambient")
+        }
+    };
+    let mut setup = radiometric::Setup {
+        cfg,
+        bits: fac.drive.bits,
+        spectral: Some(CameraSpectral::from_scene(&scene)),
+        meter_response,
+        screen_spectrum,
+        dark,
+        screen_power: Some(&mut power),
+        source: facility.display().to_string(),
+    };
+    let report = radiometric::run(inst, &mut setup, ckpt)?;
+    let out = radiometric::Outputs::in_dir(&cfg.out_dir);
+    radiometric::write(&report, &setup, &out)?;
+    println!(
+        "LUT {} ({} levels, black {:.4e}, max {:.4e} W m-2 sr-1); leave-one-out RMS {:.3} %, max {:.3} %; drift {:+.3} %",
+        out.lut.display(),
+        report.levels.len(),
+        report.black_radiance,
+        report.max_radiance,
+        report.loo_rms_percent,
+        report.loo_max_percent,
+        report.drift_percent
+    );
+    println!(
+        "report {}, plot {}; set `calibration.lut` to the LUT to use it",
+        out.report.display(),
+        out.plot.display()
+    );
+    Ok(())
+}
+
+/// Camera pixel → direction: the intrinsics file, else (simulated
+/// facility) the simulated camera's own intrinsics.
+fn intrinsics(cfg: &CalibrateConfig, sim: Option<&SimFacility>) -> Result<CameraIntrinsics> {
+    if let Some(p) = &cfg.camera.intrinsics {
+        return Ok(CameraIntrinsics::load(p)?);
+    }
+    match sim {
+        Some(s) => {
+            let c = &s.config().camera;
+            // The simulation's (cx, cy) put pixel centres at +0.5; OpenCV's
+            // at integers.
+            Ok(CameraIntrinsics {
+                width: c.resolution[0],
+                height: c.resolution[1],
+                camera_matrix: [[c.fx, 0.0, c.cx - 0.5], [0.0, c.fy, c.cy - 0.5], [0.0, 0.0, 1.0]],
+                distortion: [c.k1, c.k2, c.p1, c.p2, 0.0],
+            })
+        }
+        None => bail!("calibrate.camera.intrinsics: missing; the flat field maps camera pixels to the screen through it"),
+    }
+}
+
+fn run_flat(
+    fac: &FacilityConfig,
+    cfg: &CalibrateConfig,
+    sim: Option<&SimFacility>,
+    inst: &mut Instruments,
+    ckpt: &mut Checkpoint,
+    dark: Option<Vec<f32>>,
+) -> Result<()> {
+    let screen = fac.screen_size();
+    let gpath = fac.calibration.geometry.as_ref().context(
+        "calibration.geometry: missing; run `optistim calibrate geometric` first and set it",
+    )?;
+    let geometry = GeometryCalibration::load(gpath, screen)?;
+    let k = intrinsics(cfg, sim)?;
+    let direction = move |x: f64, y: f64| match k.pixel_to_direction(x, y) {
+        Some(d) => (d.x / d.z, d.y / d.z),
+        None => (f64::NAN, f64::NAN),
+    };
+    let camera_flat = match &cfg.flat.camera_flat {
+        Some(p) => {
+            let f = optistim::instruments::frame::read_frame(p)?;
+            Some(f.2)
+        }
+        None if sim.is_some() => {
+            // The simulated camera's own flat, as its calibration would give it.
+            sim.map(|s| s.camera_flat())
+        }
+        None => {
+            tracing::warn!("calibrate.flat.camera_flat not given: the camera's own vignetting and PRNU will be taken for the screen's");
+            None
+        }
+    };
+    let setup = flat::FlatSetup {
+        cfg,
+        bits: fac.drive.bits,
+        screen,
+        pixel_direction: &direction,
+        geometry: &geometry,
+        camera_flat,
+        dark,
+    };
+    let (gains, report) = flat::run(inst, &setup, ckpt)?;
+    let tif = cfg.out_dir.join("flat_field.tif");
+    flat::write_tiff(&tif, &gains, screen)?;
+    let (json, png) = (
+        cfg.out_dir.join("flat_report.json"),
+        cfg.out_dir.join("flat_field.png"),
+    );
+    flat::write_report(&report, &gains, screen, &json, &png)?;
+    println!(
+        "flat field {} (gain {:.4}..{:.4} over the area seen, 13-point non-uniformity {:.2} %, levels agree within {:.3} %); report {}, map {}; set `calibration.flat_field` to use it",
+        tif.display(),
+        report.min_gain,
+        report.max_gain,
+        report.nonuniformity_13_percent,
+        report.level_disagreement_percent,
+        json.display(),
+        png.display()
+    );
+    Ok(())
+}
+
+fn run_verify(
+    fac: &FacilityConfig,
+    cfg: &CalibrateConfig,
+    inst: &mut Instruments,
+    ckpt: &mut Checkpoint,
+    dark: Option<Vec<f32>>,
+) -> Result<()> {
+    let screen = fac.screen_size();
+    let lut = DisplayLut::load(&fac.calibration.lut, fac.drive.bits)?;
+    let flat = match &fac.calibration.flat_field {
+        Some(p) => Some(FlatField::load(p, screen)?),
+        None => None,
+    };
+    let rpath = cfg.out_dir.join("radiometric_report.json");
+    let text = std::fs::read_to_string(&rpath).with_context(|| {
+        format!(
+            "{}: verify needs the radiometric calibration's report (its camera scale)",
+            rpath.display()
+        )
+    })?;
+    let rep: radiometric::Report =
+        serde_json::from_str(&text).with_context(|| format!("{}", rpath.display()))?;
+    if !(rep.scale.is_finite() && rep.scale > 0.0) {
+        bail!(
+            "{}: scale {} is not a positive number",
+            rpath.display(),
+            rep.scale
+        );
+    }
+    let setup = verify::VerifySetup {
+        cfg,
+        lut,
+        flat,
+        screen,
+        camera_scale: rep.scale,
+        mismatch_factor: rep.mismatch_factor,
+        dark,
+    };
+    let report = verify::run(inst, &setup, ckpt)?;
+    let json = cfg.out_dir.join("verify_report.json");
+    std::fs::write(&json, serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("writing {}", json.display()))?;
+    print!("{}", verify::summary(&report));
+    println!("report {}", json.display());
+    if report.drift_warning {
+        tracing::warn!(
+            "drift {:.3} % beyond calibrate.verify.drift_warn_percent {} %: recalibrate",
+            report.max_drift_percent,
+            report.drift_warn_percent
+        );
+    }
+    if !report.passed {
+        bail!(
+            "verification failed: max |achieved/target − 1| {:.3} % above calibrate.verify.max_error_percent {} %",
+            report.max_error_percent,
+            report.threshold_percent
+        );
+    }
+    Ok(())
+}
+
+fn run_geometric(cfg: &CalibrateConfig, facility: &Path, rig: &mut Rig) -> Result<()> {
+    let table = cfg.geometric.clone().context(
+        "calibrate.geometric: missing; the geometric routine needs its table (docs/GEOMETRIC.md)",
+    )?;
+    let mut g: geometric::GeometricConfig = table.try_into().map_err(|e: toml::de::Error| {
+        anyhow::anyhow!("{}: [calibrate.geometric]: {e}", facility.display())
+    })?;
+    g.resolve_paths(facility.parent().unwrap_or(Path::new(".")));
+    let report = geometric::calibrate_geometric(
+        rig.display.as_mut(),
+        rig.camera.as_mut(),
+        &g,
+        &cfg.out_dir,
+    )?;
+    println!(
+        "geometry {} ({} dots used, {} rejected): residual RMS {:.4} camera px ({:.2}\"), max {:.4} px ({:.2}\"); report {}; set `calibration.geometry` to use it",
+        report.geometry_csv.display(),
+        report.dots_used,
+        report.dots_rejected,
+        report.rms_px,
+        report.rms_arcsec,
+        report.max_px,
+        report.max_arcsec,
+        report.report_json.display()
+    );
+    Ok(())
+}

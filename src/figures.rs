@@ -1,0 +1,640 @@
+//! Small reusable PNG figures for reports: curves with an optional log axis
+//! and a residual panel, a heatmap with a colour bar, and a quiver (arrow)
+//! plot. Built on `plotters`' bitmap backend with the bundled DejaVu Sans
+//! (data/fonts/), so no system font library is needed.
+//!
+//! Every figure has a title and axis labels with units (the caller gives
+//! them); colour always comes with a colour bar or a legend.
+
+use std::path::Path;
+use std::sync::Once;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::error::{Error, Result};
+
+/// DejaVu Sans, registered as plotters' `sans-serif` on first use.
+static FONT: &[u8] = include_bytes!("../data/fonts/DejaVuSans.ttf");
+static FONT_ONCE: Once = Once::new();
+
+const FONT_NAME: &str = "sans-serif";
+
+fn ensure_font() {
+    FONT_ONCE.call_once(|| {
+        // The bundled file is a valid TTF; failure would only mean no text.
+        let _ = plotters::style::register_font(FONT_NAME, FontStyle::Normal, FONT);
+    });
+}
+
+/// Series colours, in order (colour-blind friendly, Okabe–Ito).
+pub const PALETTE: [RGBColor; 6] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(230, 159, 0),
+    RGBColor(86, 180, 233),
+];
+
+/// How a series is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mark {
+    /// Connected line.
+    Line,
+    /// Filled circles.
+    Points,
+}
+
+/// One named series of `(x, y)` points.
+#[derive(Debug, Clone)]
+pub struct Series {
+    pub label: String,
+    pub points: Vec<(f64, f64)>,
+    pub mark: Mark,
+}
+
+impl Series {
+    pub fn line(label: impl Into<String>, points: Vec<(f64, f64)>) -> Series {
+        Series {
+            label: label.into(),
+            points,
+            mark: Mark::Line,
+        }
+    }
+
+    pub fn points(label: impl Into<String>, points: Vec<(f64, f64)>) -> Series {
+        Series {
+            label: label.into(),
+            points,
+            mark: Mark::Points,
+        }
+    }
+}
+
+/// A panel of series sharing axes.
+#[derive(Debug, Clone)]
+pub struct Panel {
+    pub y_label: String,
+    /// Logarithmic y axis (non-positive values are left out).
+    pub log_y: bool,
+    pub series: Vec<Series>,
+}
+
+/// A curve figure: a main panel and an optional residual panel below it,
+/// sharing the x axis.
+#[derive(Debug, Clone)]
+pub struct CurveFigure {
+    pub title: String,
+    pub x_label: String,
+    pub main: Panel,
+    pub residuals: Option<Panel>,
+    /// Pixels.
+    pub size: (u32, u32),
+}
+
+fn draw_err(path: &Path) -> impl Fn(String) -> Error + '_ {
+    move |e| Error::Other(format!("{}: cannot draw figure: {e}", path.display()))
+}
+
+fn finite_points(s: &Series, log_y: bool) -> Vec<(f64, f64)> {
+    s.points
+        .iter()
+        .copied()
+        .filter(|(x, y)| x.is_finite() && y.is_finite() && (!log_y || *y > 0.0))
+        .collect()
+}
+
+/// `(min, max)` of `values`, widened when empty or degenerate.
+fn span(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in values {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        return if log { (0.1, 10.0) } else { (-1.0, 1.0) };
+    }
+    if log {
+        if hi <= lo * 1.0001 {
+            return (lo / 2.0, hi * 2.0);
+        }
+        let r = (hi / lo).powf(0.05);
+        (lo / r, hi * r)
+    } else {
+        let pad = if hi > lo {
+            0.05 * (hi - lo)
+        } else {
+            0.5 * lo.abs().max(1.0)
+        };
+        (lo - pad, hi + pad)
+    }
+}
+
+/// Draws one panel on `area`. A macro, because plotters' linear and log
+/// charts are different types with the same drawing calls.
+macro_rules! draw_panel {
+    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr) => {{
+        let mut builder = ChartBuilder::on($area);
+        if let Some(c) = $caption {
+            builder.caption(c, (FONT_NAME, 22));
+        }
+        let mut chart = builder
+            .margin(12)
+            .x_label_area_size(42)
+            .y_label_area_size(80)
+            .build_cartesian_2d($x, $y)
+            .map_err(|e| $err(e.to_string()))?;
+        chart
+            .configure_mesh()
+            .x_desc($x_label)
+            .y_desc($panel.y_label.as_str())
+            .label_style((FONT_NAME, 14))
+            .axis_desc_style((FONT_NAME, 16))
+            .draw()
+            .map_err(|e| $err(e.to_string()))?;
+        let mut labelled = false;
+        for (i, s) in $panel.series.iter().enumerate() {
+            let colour = PALETTE[i % PALETTE.len()];
+            let pts = finite_points(s, $panel.log_y);
+            let anno = match s.mark {
+                Mark::Line => chart.draw_series(LineSeries::new(pts, colour.stroke_width(2))),
+                Mark::Points => chart.draw_series(
+                    pts.into_iter()
+                        .map(move |p| Circle::new(p, 3, colour.filled())),
+                ),
+            }
+            .map_err(|e| $err(e.to_string()))?;
+            if !s.label.is_empty() {
+                labelled = true;
+                anno.label(s.label.as_str()).legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(3))
+                });
+            }
+        }
+        if labelled {
+            chart
+                .configure_series_labels()
+                .label_font((FONT_NAME, 14))
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .position(SeriesLabelPosition::UpperLeft)
+                .draw()
+                .map_err(|e| $err(e.to_string()))?;
+        }
+    }};
+}
+
+fn panel_on(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    caption: Option<&str>,
+    x: (f64, f64),
+    x_label: &str,
+    panel: &Panel,
+    path: &Path,
+) -> Result<()> {
+    let err = draw_err(path);
+    let ys = panel
+        .series
+        .iter()
+        .flat_map(|s| finite_points(s, panel.log_y))
+        .map(|p| p.1);
+    let (y0, y1) = span(ys, panel.log_y);
+    if panel.log_y {
+        draw_panel!(
+            area,
+            caption,
+            x.0..x.1,
+            (y0..y1).log_scale(),
+            x_label,
+            panel,
+            err
+        );
+    } else {
+        draw_panel!(area, caption, x.0..x.1, y0..y1, x_label, panel, err);
+    }
+    Ok(())
+}
+
+/// Writes a curve figure (main panel, optional residual panel) as PNG.
+pub fn curve_figure(path: impl AsRef<Path>, fig: &CurveFigure) -> Result<()> {
+    let path = path.as_ref();
+    ensure_font();
+    let err = draw_err(path);
+    let root = BitMapBackend::new(path, fig.size).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let xs = fig
+        .main
+        .series
+        .iter()
+        .chain(fig.residuals.iter().flat_map(|p| p.series.iter()))
+        .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
+    let x = span(xs, false);
+    match &fig.residuals {
+        Some(res) => {
+            let (top, bottom) = root.split_vertically(fig.size.1 * 65 / 100);
+            panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
+            panel_on(&bottom, None, x, &fig.x_label, res, path)?;
+        }
+        None => panel_on(&root, Some(&fig.title), x, &fig.x_label, &fig.main, path)?,
+    }
+    root.present().map_err(|e| err(e.to_string()))?;
+    Ok(())
+}
+
+/// Perceptually ordered colour map (viridis control points, linear
+/// between them) for `t` in [0, 1].
+pub fn viridis(t: f64) -> RGBColor {
+    const STOPS: [(u8, u8, u8); 6] = [
+        (68, 1, 84),
+        (65, 68, 135),
+        (42, 120, 142),
+        (34, 168, 132),
+        (122, 209, 81),
+        (253, 231, 37),
+    ];
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let f = t * (STOPS.len() - 1) as f64;
+    let i = (f as usize).min(STOPS.len() - 2);
+    let w = f - i as f64;
+    let mix = |a: u8, b: u8| (a as f64 * (1.0 - w) + b as f64 * w).round() as u8;
+    let (a, b) = (STOPS[i], STOPS[i + 1]);
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+/// A scalar map to draw as a heatmap.
+#[derive(Debug, Clone)]
+pub struct Heatmap<'a> {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    /// Colour-bar label with the unit.
+    pub value_label: String,
+    /// Map size in its own pixels (row-major, top row first).
+    pub width: usize,
+    pub height: usize,
+    pub values: &'a [f64],
+    /// Image size, pixels.
+    pub size: (u32, u32),
+}
+
+/// Block-averages `values` to at most `max_cells` cells along each axis.
+fn downsample(h: &Heatmap, max_cells: usize) -> (usize, usize, usize, Vec<f64>) {
+    let step = h.width.max(h.height).div_ceil(max_cells).max(1);
+    let (nw, nh) = (h.width.div_ceil(step), h.height.div_ceil(step));
+    let mut out = vec![0.0; nw * nh];
+    for (j, row) in out.chunks_mut(nw).enumerate() {
+        for (i, cell) in row.iter_mut().enumerate() {
+            let (mut sum, mut n) = (0.0, 0usize);
+            for y in j * step..((j + 1) * step).min(h.height) {
+                for x in i * step..((i + 1) * step).min(h.width) {
+                    let v = h.values[y * h.width + x];
+                    if v.is_finite() {
+                        sum += v;
+                        n += 1;
+                    }
+                }
+            }
+            *cell = if n > 0 { sum / n as f64 } else { f64::NAN };
+        }
+    }
+    (nw, nh, step, out)
+}
+
+/// Writes a heatmap with a colour bar as PNG. The y axis runs down (image
+/// rows), as on the screen.
+pub fn heatmap(path: impl AsRef<Path>, h: &Heatmap) -> Result<()> {
+    let path = path.as_ref();
+    ensure_font();
+    let err = draw_err(path);
+    if h.width == 0 || h.height == 0 || h.values.len() != h.width * h.height {
+        return Err(err(format!(
+            "{} values for a {}×{} map",
+            h.values.len(),
+            h.width,
+            h.height
+        )));
+    }
+    let (nw, nh, step, cells) = downsample(h, 240);
+    let (vmin, vmax) = span(cells.iter().copied().filter(|v| v.is_finite()), false);
+    let norm = |v: f64| (v - vmin) / (vmax - vmin);
+    let root = BitMapBackend::new(path, h.size).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let (main, bar) = root.split_horizontally(h.size.0 * 80 / 100);
+    let (w, hh) = (h.width as f64, h.height as f64);
+    let mut chart = ChartBuilder::on(&main)
+        .caption(&h.title, (FONT_NAME, 22))
+        .margin(12)
+        .x_label_area_size(42)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..w, -hh..0.0)
+        .map_err(|e| err(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc(h.x_label.as_str())
+        .y_desc(h.y_label.as_str())
+        .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
+        .label_style((FONT_NAME, 14))
+        .axis_desc_style((FONT_NAME, 16))
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    let s = step as f64;
+    chart
+        .draw_series(cells.iter().enumerate().map(|(k, &v)| {
+            let (i, j) = ((k % nw) as f64, (k / nw) as f64);
+            let colour = if v.is_finite() {
+                viridis(norm(v))
+            } else {
+                WHITE
+            };
+            Rectangle::new(
+                [
+                    (i * s, -j * s),
+                    (((i + 1.0) * s).min(w), -((j + 1.0) * s).min(hh)),
+                ],
+                colour.filled(),
+            )
+        }))
+        .map_err(|e| err(e.to_string()))?;
+    let _ = nh;
+    colour_bar(&bar, vmin, vmax, &h.value_label, path)?;
+    root.present().map_err(|e| err(e.to_string()))?;
+    Ok(())
+}
+
+fn colour_bar(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    vmin: f64,
+    vmax: f64,
+    label: &str,
+    path: &Path,
+) -> Result<()> {
+    let err = draw_err(path);
+    let mut chart = ChartBuilder::on(area)
+        .margin_top(44)
+        .margin_bottom(54)
+        .margin_left(8)
+        .margin_right(24)
+        .right_y_label_area_size(80)
+        .build_cartesian_2d(0.0..1.0, vmin..vmax)
+        .map_err(|e| err(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .disable_x_axis()
+        .y_desc(label)
+        .label_style((FONT_NAME, 13))
+        .axis_desc_style((FONT_NAME, 15))
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    let n = 200;
+    chart
+        .draw_series((0..n).map(|k| {
+            let a = vmin + (vmax - vmin) * k as f64 / n as f64;
+            let b = vmin + (vmax - vmin) * (k + 1) as f64 / n as f64;
+            Rectangle::new(
+                [(0.0, a), (1.0, b)],
+                viridis((k as f64 + 0.5) / n as f64).filled(),
+            )
+        }))
+        .map_err(|e| err(e.to_string()))?;
+    Ok(())
+}
+
+/// One arrow of a quiver plot: from `(x, y)` along `(dx, dy)` (data
+/// units of the arrow, scaled by [`Quiver::scale`] for drawing).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Arrow {
+    pub x: f64,
+    pub y: f64,
+    pub dx: f64,
+    pub dy: f64,
+}
+
+/// A quiver plot over an image-like area (y down).
+#[derive(Debug, Clone)]
+pub struct Quiver<'a> {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    /// `[x0, x1] × [y0, y1]` of the plotted area, y down.
+    pub extent: ((f64, f64), (f64, f64)),
+    pub arrows: &'a [Arrow],
+    /// Drawing length per arrow unit (e.g. screen px per camera px of
+    /// residual).
+    pub scale: f64,
+    /// Length of the key arrow in arrow units, and its label
+    /// (e.g. `0.1 camera px`).
+    pub key: (f64, String),
+    pub size: (u32, u32),
+}
+
+fn arrow_lines(x: f64, y: f64, dx: f64, dy: f64) -> [Vec<(f64, f64)>; 3] {
+    let (ex, ey) = (x + dx, y + dy);
+    let len = dx.hypot(dy);
+    let head = 0.3 * len;
+    let (ux, uy) = if len > 0.0 {
+        (dx / len, dy / len)
+    } else {
+        (0.0, 0.0)
+    };
+    let side = |s: f64| {
+        let (c, sn) = (0.45_f64.cos(), s * 0.45_f64.sin());
+        let (rx, ry) = (ux * c - uy * sn, ux * sn + uy * c);
+        vec![(ex, -ey), (ex - head * rx, -(ey - head * ry))]
+    };
+    [vec![(x, -y), (ex, -ey)], side(1.0), side(-1.0)]
+}
+
+/// Writes a quiver plot as PNG, with a key arrow below the title.
+pub fn quiver(path: impl AsRef<Path>, q: &Quiver) -> Result<()> {
+    let path = path.as_ref();
+    ensure_font();
+    let err = draw_err(path);
+    let ((x0, x1), (y0, y1)) = q.extent;
+    if !(x1 > x0 && y1 > y0 && q.scale.is_finite() && q.scale > 0.0) {
+        return Err(err("empty extent or non-positive scale".into()));
+    }
+    let root = BitMapBackend::new(path, q.size).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(&q.title, (FONT_NAME, 22))
+        .margin(12)
+        .margin_top(44)
+        .x_label_area_size(42)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1, -y1..-y0)
+        .map_err(|e| err(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .x_desc(q.x_label.as_str())
+        .y_desc(q.y_label.as_str())
+        .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
+        .label_style((FONT_NAME, 14))
+        .axis_desc_style((FONT_NAME, 16))
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    let colour = PALETTE[0];
+    for a in q
+        .arrows
+        .iter()
+        .filter(|a| [a.x, a.y, a.dx, a.dy].iter().all(|v| v.is_finite()))
+    {
+        let lines = arrow_lines(a.x, a.y, a.dx * q.scale, a.dy * q.scale);
+        chart
+            .draw_series(
+                lines
+                    .into_iter()
+                    .map(|l| PathElement::new(l, colour.stroke_width(1))),
+            )
+            .map_err(|e| err(e.to_string()))?;
+    }
+    // Key: an arrow of the key length in the top margin, above the plot,
+    // so it never hides an arrow.
+    let area = chart.plotting_area();
+    let (pw, _) = area.dim_in_pixel();
+    let (bx, by) = area.get_base_pixel();
+    let klen = (q.key.0 * q.scale * pw as f64 / (x1 - x0)).round();
+    let key_colour = PALETTE[1];
+    let (kx, ky) = (bx as f64 + 10.0, by as f64 - 14.0);
+    for l in arrow_lines(kx, ky, klen, 0.0) {
+        let px: Vec<(i32, i32)> = l.iter().map(|&(x, y)| (x as i32, -y as i32)).collect();
+        root.draw(&PathElement::new(px, key_colour.stroke_width(2)))
+            .map_err(|e| err(e.to_string()))?;
+    }
+    root.draw(&Text::new(
+        format!("key: {}", q.key.1),
+        ((kx + klen + 10.0) as i32, (ky - 8.0) as i32),
+        (FONT_NAME, 14).into_font().color(&key_colour),
+    ))
+    .map_err(|e| err(e.to_string()))?;
+    root.present().map_err(|e| err(e.to_string()))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn viridis_ends_and_clamps() {
+        assert_eq!(viridis(0.0), RGBColor(68, 1, 84));
+        assert_eq!(viridis(1.0), RGBColor(253, 231, 37));
+        assert_eq!(viridis(-3.0), viridis(0.0));
+        assert_eq!(viridis(f64::NAN), viridis(0.0));
+    }
+
+    /// Each figure kind writes a PNG of the requested size whose pixels are
+    /// not all white (something was drawn).
+    #[test]
+    fn figures_write_pngs_of_the_requested_size() {
+        let dir = tempfile::tempdir().unwrap();
+        // OPTISTIM_KEEP_FIGURES=DIR keeps the figures for looking at them.
+        let keep = std::env::var_os("OPTISTIM_KEEP_FIGURES");
+        let check = |p: &Path, size: (u32, u32)| {
+            if let Some(k) = &keep {
+                std::fs::copy(p, Path::new(k).join(p.file_name().unwrap())).unwrap();
+            }
+            let img = image::open(p).unwrap().to_rgb8();
+            assert_eq!((img.width(), img.height()), size);
+            let dark = img
+                .pixels()
+                .filter(|p| p.0.iter().all(|&c| c < 100))
+                .count();
+            assert!(dark > 500, "{}: only {dark} dark pixels", p.display());
+        };
+        let pts: Vec<(f64, f64)> = (0..=32)
+            .map(|k| (k as f64 * 8.0, 1e-3 + (k as f64 / 32.0).powf(2.2)))
+            .collect();
+        let fig = CurveFigure {
+            title: "curve".into(),
+            x_label: "drive level".into(),
+            main: Panel {
+                y_label: "radiance (W m⁻² sr⁻¹)".into(),
+                log_y: true,
+                series: vec![
+                    Series::line("fit", pts.clone()),
+                    Series::points("measured", pts.clone()),
+                ],
+            },
+            residuals: Some(Panel {
+                y_label: "residual (%)".into(),
+                log_y: false,
+                series: vec![Series::points(
+                    "",
+                    pts.iter().map(|p| (p.0, p.1.sin())).collect(),
+                )],
+            }),
+            size: (800, 600),
+        };
+        let p = dir.path().join("c.png");
+        curve_figure(&p, &fig).unwrap();
+        check(&p, (800, 600));
+        let values: Vec<f64> = (0..50 * 30).map(|k| (k % 50) as f64 / 50.0).collect();
+        let p = dir.path().join("h.png");
+        heatmap(
+            &p,
+            &Heatmap {
+                title: "map".into(),
+                x_label: "u (px)".into(),
+                y_label: "v (px)".into(),
+                value_label: "gain".into(),
+                width: 50,
+                height: 30,
+                values: &values,
+                size: (700, 420),
+            },
+        )
+        .unwrap();
+        check(&p, (700, 420));
+        let arrows: Vec<Arrow> = (0..25)
+            .map(|k| Arrow {
+                x: (k % 5) as f64 * 20.0 + 10.0,
+                y: (k / 5) as f64 * 20.0 + 10.0,
+                dx: 0.1,
+                dy: -0.05,
+            })
+            .collect();
+        let p = dir.path().join("q.png");
+        quiver(
+            &p,
+            &Quiver {
+                title: "residuals".into(),
+                x_label: "u (px)".into(),
+                y_label: "v (px)".into(),
+                extent: ((0.0, 100.0), (0.0, 100.0)),
+                arrows: &arrows,
+                scale: 100.0,
+                key: (0.1, "0.1 px".into()),
+                size: (600, 600),
+            },
+        )
+        .unwrap();
+        check(&p, (600, 600));
+        let bad = Heatmap {
+            width: 3,
+            height: 3,
+            values: &values[..4],
+            ..heatmap_like()
+        };
+        assert!(heatmap(dir.path().join("bad.png"), &bad).is_err());
+    }
+
+    fn heatmap_like() -> Heatmap<'static> {
+        Heatmap {
+            title: String::new(),
+            x_label: String::new(),
+            y_label: String::new(),
+            value_label: String::new(),
+            width: 0,
+            height: 0,
+            values: &[],
+            size: (100, 100),
+        }
+    }
+}
