@@ -5,16 +5,10 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use super::camera_model::Intrinsics;
 use super::patterns::DotGrid;
 use super::{GeometricConfig, GeometricReport, Solution};
 use crate::error::{Error, Result};
 use crate::facility::geometry::GeometryCalibration;
-
-/// Reads the camera intrinsics file.
-pub fn load_intrinsics(path: &Path) -> Result<Intrinsics> {
-    Intrinsics::load(path)
-}
 
 /// Nodes `0, step, 2 step, …` and always `size`.
 pub fn lattice_axis(size: usize, step: usize) -> Vec<usize> {
@@ -68,7 +62,9 @@ pub fn geometry_csv(
     let _ = writeln!(s, "# date: {date}");
     let _ = writeln!(s, "# software: optistim {}", env!("CARGO_PKG_VERSION"));
     let _ = writeln!(s, "# camera: {}", camera.replace('\n', " "));
-    let _ = writeln!(s, "# intrinsics: {}", cfg.intrinsics.display());
+    if let Some(p) = &cfg.intrinsics {
+        let _ = writeln!(s, "# intrinsics: {}", p.display());
+    }
     let _ = writeln!(
         s,
         "# screen: {w}x{h}; dots every {} px ({:?}, radius {} px, level {}); {} shown",
