@@ -542,6 +542,18 @@ fn command_camera_runs_a_real_command() {
     );
     assert!(!e.contains("starting"), "{e}");
 
+    // A command leaving a background process that holds stderr open.
+    let bg = write(
+        dir.path(),
+        "bg.sh",
+        format!("#!/bin/sh\ncp '{}' \"$1\"\nsleep 20 &\n", src.display()).as_bytes(),
+    );
+    let cmd = format!("command = \"sh {} {{path}}\"", bg.display());
+    let mut cam = open_camera(&camera_cfg("command", dir.path(), &cmd), dir.path()).unwrap();
+    let t0 = Instant::now();
+    assert_eq!(cam.capture(&req("bg")).unwrap().data.len(), 4);
+    assert!(t0.elapsed() < Duration::from_secs(3), "{:?}", t0.elapsed());
+
     // Exit 0 without writing the file; a command that hangs is killed.
     let cmd = "command = \"true {path}\"";
     let mut cam = open_camera(&camera_cfg("command", dir.path(), cmd), dir.path()).unwrap();

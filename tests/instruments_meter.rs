@@ -118,13 +118,17 @@ fn session(
 
 #[test]
 fn scalar_replies_are_parsed_and_scaled() {
-    let (r, n, _) = session(
-        "unit_scale = 2.0\nretries = 0",
+    let (r, n, elapsed) = session(
+        "unit_scale = 2.0\nretries = 0\nsettle = 0.1",
         PHOTOMETER,
         vec![now("OK 12.34E+00\r"), now("OK -1.5e-3\r")],
         2,
     );
     assert_eq!(n, 2);
+    assert!(
+        elapsed >= Duration::from_millis(200),
+        "settle not waited: {elapsed:?}"
+    );
     assert_eq!(r[0].as_ref().unwrap().value, 2.0 * 12.34);
     assert_eq!(r[1].as_ref().unwrap().value, 2.0 * -1.5e-3);
     assert!(r[0].as_ref().unwrap().spectrum.is_none());
@@ -172,6 +176,28 @@ fn reply_beyond_timeout_is_retried_and_the_late_one_discarded() {
     assert_eq!(n, 3);
     assert_eq!(r[0].as_ref().unwrap().value, 2.0, "late reply taken");
     assert_eq!(r[1].as_ref().unwrap().value, 3.0, "replies out of step");
+}
+
+#[test]
+fn replies_always_late_fail_and_the_next_reading_skips_the_last_late_one() {
+    let late = Duration::from_secs_f64(TIMEOUT_S * 1.5);
+    let (r, n, _) = session(
+        "retries = 1",
+        PHOTOMETER,
+        vec![
+            Reply(late, "OK 1.0\r"),
+            Reply(late, "OK 2.0\r"),
+            now("OK 3.0\r"),
+        ],
+        2,
+    );
+    let e = r[0].as_ref().unwrap_err();
+    assert!(
+        e.contains("bench photometer") && e.contains("no reply"),
+        "{e}"
+    );
+    assert_eq!(r[1].as_ref().unwrap().value, 3.0, "a late reply was taken");
+    assert_eq!(n, 3);
 }
 
 #[test]
@@ -227,6 +253,12 @@ fn unplug_fails_the_reading_and_replug_works_again() {
     let cfg = config(&link, "retries = 2", PHOTOMETER);
     let mut meter = open_spot_meter(&cfg, dir.path()).unwrap();
     assert_eq!(meter.measure().unwrap().value, 1.0);
+    let d = meter.describe();
+    let port = link.display().to_string();
+    assert!(
+        d.contains("bench photometer") && d.contains(&port) && d.contains("9600"),
+        "{d}"
+    );
 
     stop.store(true, Ordering::Relaxed);
     let (master, _) = inst.join().unwrap();

@@ -268,7 +268,8 @@ fn run(argv: &[std::ffi::OsString], timeout: Duration) -> std::result::Result<()
         .map_err(|e| format!("cannot run `{program}`: {e}"))?;
     // Drained in a thread so a chatty command never blocks on a full pipe.
     let mut stderr = child.stderr.take().expect("piped stderr");
-    let reader = std::thread::spawn(move || {
+    let (tail_tx, tail_rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
         let mut tail = Vec::new();
         let mut buf = [0u8; 4096];
         while let Ok(n) = stderr.read(&mut buf) {
@@ -280,7 +281,7 @@ fn run(argv: &[std::ffi::OsString], timeout: Duration) -> std::result::Result<()
                 tail.drain(..tail.len() - 4096);
             }
         }
-        String::from_utf8_lossy(&tail).into_owned()
+        let _ = tail_tx.send(String::from_utf8_lossy(&tail).into_owned());
     });
     let deadline = Instant::now() + timeout;
     let status = loop {
@@ -298,7 +299,11 @@ fn run(argv: &[std::ffi::OsString], timeout: Duration) -> std::result::Result<()
             Err(e) => return Err(format!("waiting for `{program}`: {e}")),
         }
     };
-    let err = reader.join().unwrap_or_default();
+    // A background process the command left behind may hold stderr open:
+    // wait for its end only briefly.
+    let err = tail_rx
+        .recv_timeout(Duration::from_millis(500))
+        .unwrap_or_default();
     if status.success() {
         return Ok(());
     }

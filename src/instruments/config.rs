@@ -31,6 +31,7 @@
 //! # command = "grab --exposure {exposure_us} --out {path}"
 //! # extension = "png"           # command: the format {path} asks for
 //! timeout = 30.0                # s
+//! poll = 0.05                   # s, files: interval between checks
 //! exposure = 0.01               # s
 //! saturation_dn = 65535
 //! # resolution = [1024, 1024]   # expected frame size, checked on every frame

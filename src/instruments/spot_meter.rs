@@ -14,7 +14,8 @@
 //! A timeout or a malformed reply is retried up to `retries` times. After a
 //! timeout the retry first discards whatever arrives during one more
 //! `timeout` (the late reply of the abandoned command), so a slow reply is
-//! not taken for the retry's. A read or write error (the adapter unplugged)
+//! not taken for the retry's; so does the next reading after one that
+//! failed by a timeout. A read or write error (the adapter unplugged)
 //! closes the port and fails this reading; the next reading re-opens the
 //! port's path.
 
@@ -275,6 +276,8 @@ pub struct SerialSpotMeter {
     cfg: SpotMeterConfig,
     path: PathBuf,
     port: Option<Box<dyn SerialPort>>,
+    /// The last reading ended in a timeout: its reply may still come.
+    late_reply_pending: bool,
 }
 
 impl SerialSpotMeter {
@@ -290,6 +293,7 @@ impl SerialSpotMeter {
             cfg,
             path,
             port: None,
+            late_reply_pending: false,
         };
         m.connect()?;
         Ok(m)
@@ -391,13 +395,15 @@ impl SpotMeter for SerialSpotMeter {
         let timeout = Duration::from_secs_f64(self.cfg.timeout);
         let mut last = Attempt::Timeout(String::new());
         for attempt in 0..=self.cfg.retries {
-            if attempt > 0 {
-                if let Attempt::Timeout(_) = last {
-                    if let Err(gone) = self.discard_for(timeout) {
-                        last = gone;
-                        break;
-                    }
+            let after_timeout = matches!(last, Attempt::Timeout(_))
+                && (attempt > 0 || std::mem::take(&mut self.late_reply_pending));
+            if after_timeout {
+                if let Err(gone) = self.discard_for(timeout) {
+                    last = gone;
+                    break;
                 }
+            }
+            if attempt > 0 {
                 tracing::warn!(
                     "spot meter `{}`: retry {attempt} of {}",
                     self.cfg.name,
@@ -413,6 +419,7 @@ impl SpotMeter for SerialSpotMeter {
                 Err(a) => last = a,
             }
         }
+        self.late_reply_pending = matches!(last, Attempt::Timeout(_));
         Err(self.failure(last))
     }
 
