@@ -161,12 +161,7 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
         }
         (tx, ty)
     };
-    let cfg = CalibrateConfig::parse(
-        CALIBRATE.replace("[128, 128]", "[128, 128]").as_str(),
-        "c.toml",
-        8,
-    )
-    .unwrap();
+    let cfg = CalibrateConfig::parse(CALIBRATE, "c.toml", 8).unwrap();
     let setup = FlatSetup {
         cfg: &cfg,
         bits: 8,
