@@ -300,9 +300,21 @@ pub struct RunArgs {
     /// port of that host).
     #[arg(long, default_value = "127.0.0.1:0")]
     pub sender: String,
-    /// `sim` (in memory) or `window` (full-screen X11).
+    /// `sim` (in memory), `window` (full-screen X11) or `sim-facility`
+    /// (the simulated facility of `--sim-facility`, its camera capturing).
     #[arg(long, default_value = "sim")]
     pub display: String,
+    /// Simulated facility file (TOML, docs/SIMFACILITY.md), for
+    /// `--display sim-facility`.
+    #[arg(long)]
+    pub sim_facility: Option<std::path::PathBuf>,
+    /// Where the simulated camera's frames go (16-bit PNG), for
+    /// `--display sim-facility`.
+    #[arg(long, default_value = "out/captures")]
+    pub captures: std::path::PathBuf,
+    /// Capture every Nth frame shown.
+    #[arg(long, default_value_t = 1)]
+    pub capture_every: u64,
     /// `sim`, `none`, or a serial device path (default: the facility
     /// file's `sync.port`, else `sim`).
     #[arg(long)]
@@ -417,7 +429,28 @@ pub fn run(args: &RunArgs) -> Result<()> {
             })?;
             driver::run(plan, &mut display, sync.as_mut(), stop)?
         }
-        other => anyhow::bail!("--display must be `sim` or `window`, not `{other}`"),
+        "sim-facility" => {
+            let path = args
+                .sim_facility
+                .as_ref()
+                .context("--display sim-facility needs --sim-facility FILE")?;
+            let facility = optistim::simfacility::SimFacility::load(path)?;
+            let mut display = optistim::simfacility::RecordingScreen::new(
+                &facility,
+                &args.captures,
+                args.capture_every,
+            )?;
+            let s = driver::run(plan, &mut display, sync.as_mut(), stop)?;
+            let written = display.written.len();
+            tracing::info!(
+                "the simulated camera wrote {written} frames to {}",
+                args.captures.display()
+            );
+            s
+        }
+        other => {
+            anyhow::bail!("--display must be `sim`, `window` or `sim-facility`, not `{other}`")
+        }
     };
     let lat = &summary.latency_state_to_present;
     let ms = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{:.2} ms", x * 1e3));

@@ -75,13 +75,23 @@ fn write_intrinsics(dir: &Path) -> std::path::PathBuf {
     let p = dir.join("intrinsics.toml");
     std::fs::write(
         &p,
-        format!(
-            "fx = {}\nfy = {}\ncx = {}\ncy = {}\nk1 = {}\nk2 = {}\np1 = {}\np2 = {}\n",
-            CAM.fx, CAM.fy, CAM.cx, CAM.cy, CAM.k1, CAM.k2, CAM.p1, CAM.p2
+        intrinsics_toml(
+            CAMERA,
+            [CAM.fx, CAM.fy, CAM.cx, CAM.cy],
+            [CAM.k1, CAM.k2, CAM.p1, CAM.p2],
         ),
     )
     .unwrap();
     p
+}
+
+/// An intrinsics file (docs/INSTRUMENTS.md), K in OpenCV's convention.
+fn intrinsics_toml(size: (usize, usize), k: [f64; 4], d: [f64; 4]) -> String {
+    format!(
+        "width = {}\nheight = {}\ncamera_matrix = [[{}, 0.0, {}], [0.0, {}, {}], [0.0, 0.0, 1.0]]\n\
+         distortion = [{}, {}, {}, {}, 0.0]\n",
+        size.0, size.1, k[0], k[2], k[1], k[3], d[0], d[1], d[2], d[3]
+    )
 }
 
 /// What the screen shows, shared by the display and camera handles.
@@ -117,6 +127,8 @@ struct TestCamera {
     spurious: Vec<(&'static str, [f64; 4])>,
     /// Camera focal-length factor (1: as CAM; larger sees less screen).
     zoom: f64,
+    /// DN at which a pixel saturates.
+    saturation: f32,
 }
 
 impl TestCamera {
@@ -126,6 +138,7 @@ impl TestCamera {
             dropped: |_, _| false,
             spurious: Vec::new(),
             zoom: 1.0,
+            saturation: 1e9,
         }
     }
 }
@@ -201,7 +214,7 @@ impl Camera for TestCamera {
             height: h,
             data: img.iter().map(|&v| (v + 100.0) as f32).collect(),
             exposure_s: request.exposure_s,
-            saturation_dn: 1e9,
+            saturation_dn: self.saturation,
         })
     }
     fn describe(&self) -> String {
@@ -213,6 +226,7 @@ fn config(dir: &Path) -> GeometricConfig {
     let mut cfg = GeometricConfig::with_intrinsics(write_intrinsics(dir));
     cfg.spacing_px = 48;
     cfg.radius_px = 3.0;
+    cfg.settle = 0.0;
     cfg
 }
 
@@ -353,6 +367,50 @@ fn too_few_dots_is_a_clear_error() {
 }
 
 #[test]
+fn bad_inputs_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let shared = Arc::new(Mutex::new(Shared::default()));
+    let mut display = TestDisplay(shared.clone());
+    let mut camera = TestCamera::new(shared);
+    let mut cfg = config(dir.path());
+    // No intrinsics.
+    let mut none = cfg.clone();
+    none.intrinsics = None;
+    let e = calibrate_geometric(&mut display, &mut camera, &none, dir.path()).unwrap_err();
+    assert!(
+        e.to_string().contains("calibrate.geometric.intrinsics"),
+        "{e}"
+    );
+    // Intrinsics of another camera.
+    let other = dir.path().join("other.toml");
+    std::fs::write(
+        &other,
+        intrinsics_toml((640, 480), [500.0, 500.0, 320.0, 240.0], [0.0; 4]),
+    )
+    .unwrap();
+    let mut wrong = cfg.clone();
+    wrong.intrinsics = Some(other);
+    let e = calibrate_geometric(&mut display, &mut camera, &wrong, dir.path()).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("intrinsics are for a 640×480 camera"),
+        "{e}"
+    );
+    // Saturated dots name the pattern.
+    camera.saturation = 2000.0;
+    let e = calibrate_geometric(&mut display, &mut camera, &cfg, dir.path()).unwrap_err();
+    assert!(
+        e.to_string().contains("pattern geometric_grid") && e.to_string().contains("saturated"),
+        "{e}"
+    );
+    // A bad configuration value is refused before anything is shown.
+    camera.saturation = 1e9;
+    cfg.gate = 0.0;
+    let e = calibrate_geometric(&mut display, &mut camera, &cfg, dir.path()).unwrap_err();
+    assert!(e.to_string().contains("calibrate.geometric.gate"), "{e}");
+}
+
+#[test]
 fn config_bad_values_are_named() {
     let base = "intrinsics = \"i.toml\"\n";
     let cfg: GeometricConfig = toml::from_str(base).unwrap();
@@ -410,4 +468,76 @@ mod props {
             }
         }
     }
+}
+
+/// End to end on the simulated facility (configs/simfacility.toml: its
+/// collimator distortion and misalignment, the camera's intrinsics,
+/// distortion, vignetting, PRNU and noise): the geometry recovered against
+/// the facility's truth accessor, over the part of the screen the camera
+/// sees.
+#[test]
+fn simulated_facility_end_to_end() {
+    use optistim::simfacility::SimFacility;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let sim = SimFacility::load(root.join("configs/simfacility.toml")).unwrap();
+    let cam = sim.config().camera.clone();
+    let dir = tempfile::tempdir().unwrap();
+    // The intrinsics file a camera calibration would give (OpenCV's pixel
+    // convention: centres at integers).
+    let intrinsics = dir.path().join("intrinsics.toml");
+    let [cw, ch] = cam.resolution;
+    std::fs::write(
+        &intrinsics,
+        intrinsics_toml(
+            (cw, ch),
+            [cam.fx, cam.fy, cam.cx - 0.5, cam.cy - 0.5],
+            [cam.k1, cam.k2, cam.p1, cam.p2],
+        ),
+    )
+    .unwrap();
+    let mut cfg = GeometricConfig::with_intrinsics(&intrinsics);
+    cfg.exposure = cam.exposure;
+    cfg.settle = 0.0;
+    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let t0 = Instant::now();
+    let report = calibrate_geometric(&mut display, &mut camera, &cfg, dir.path()).unwrap();
+    let elapsed = t0.elapsed().as_secs_f64();
+    let g = GeometryCalibration::load(&report.geometry_csv, (1920, 1080)).unwrap();
+    let [w, h] = cam.resolution;
+    let (mut ss, mut n, mut max) = (0.0, 0usize, 0.0f64);
+    for j in 0..=135 {
+        for i in 0..=240 {
+            let (u, v) = (i as f64 * 8.0, j as f64 * 8.0);
+            let (px, py) = sim.true_camera_pixel(u, v);
+            if px < 40.0 || py < 40.0 || px > w as f64 - 40.0 || py > h as f64 - 40.0 {
+                continue;
+            }
+            let t = sim.true_geometry(u, v);
+            let d = g.direction(u, v);
+            let e = (d[0] - t.0).hypot(d[1] - t.1) * cam.fx;
+            ss += e * e;
+            n += 1;
+            max = max.max(e);
+        }
+    }
+    let rms = (ss / n as f64).sqrt();
+    let arcsec = 206_264.806 / cam.fx;
+    eprintln!(
+        "simulated facility: geometry error vs truth RMS {rms:.4} camera px ({:.3} arcsec), max {max:.4} px \
+         ({:.3} arcsec) over {n} points the camera sees; fit residual RMS {:.4} px ({:.3} arcsec), max {:.4} px; \
+         {} dots matched, {} used of {} shown; anchors {} of {}; {elapsed:.1} s",
+        rms * arcsec,
+        max * arcsec,
+        report.rms_px,
+        report.rms_arcsec,
+        report.max_px,
+        report.dots_matched,
+        report.dots_used,
+        report.dots_shown,
+        report.anchors_identified,
+        report.anchors_shown
+    );
+    assert!(n > 10_000, "{n} points in view");
+    assert!(rms <= 0.05, "geometry RMS error {rms} camera px");
+    assert!(report.dots_used > 200);
 }

@@ -115,12 +115,12 @@ fn card(text: &str) -> String {
 fn fits(cards: &[String], data: &[u8]) -> Vec<u8> {
     let mut h: String = cards.concat();
     h.push_str(&card("END"));
-    while h.len() % 2880 != 0 {
+    while !h.len().is_multiple_of(2880) {
         h.push(' ');
     }
     let mut out = h.into_bytes();
     out.extend_from_slice(data);
-    while out.len() % 2880 != 0 {
+    while !out.len().is_multiple_of(2880) {
         out.push(0);
     }
     out

@@ -248,6 +248,53 @@ fn unplug_fails_the_reading_and_replug_works_again() {
     assert_eq!(inst.join().unwrap().1, 1);
 }
 
+/// `serve`, as the simulated facility uses it, plays the instrument for the
+/// real meter: readings the closure makes arrive scaled by `unit_scale`.
+#[test]
+fn serve_speaks_the_protocol_to_the_real_meter() {
+    let cases = [
+        ("prefix = \"VAL\"\nfield = 2", None),
+        (
+            "format = \"spectrum\"\nprefix = \"SPEC\"\nend = \"DONE\"\npair_separator = \" \"",
+            Some(vec![(400.0, 1.5), (450.5, 0.25), (700.0, 3.0)]),
+        ),
+    ];
+    for (reply, spectrum) in cases {
+        let dir = tempfile::tempdir().unwrap();
+        let link = dir.path().join("ttySIM");
+        let (mut master, _slave) = new_pair(&link);
+        let cfg = config(&link, "unit_scale = 4.0\nretries = 0", reply);
+        let stop = Arc::new(AtomicBool::new(false));
+        let (spec, stop2, sp) = (cfg.reply.clone(), stop.clone(), spectrum.clone());
+        let inst = std::thread::spawn(move || {
+            let mut n = 0.0;
+            optistim::instruments::spot_meter::serve(&mut master, "MEAS\r\n", &spec, &stop2, || {
+                n += 1.0;
+                SpotReading {
+                    value: 0.125 * n,
+                    spectrum: sp.clone(),
+                }
+            })
+        });
+        let mut meter = open_spot_meter(&cfg, dir.path()).unwrap();
+        for k in 1..=3 {
+            let r = meter.measure().unwrap();
+            match &spectrum {
+                None => assert_eq!(r.value, 4.0 * 0.125 * k as f64),
+                Some(s) => {
+                    let want: Vec<(f64, f64)> = s.iter().map(|&(w, v)| (w, 4.0 * v)).collect();
+                    assert_eq!(r.spectrum.as_ref().unwrap(), &want);
+                    // (1.5+0.25)/2·50.5 + (0.25+3)/2·249.5, × 4.
+                    let integral = 4.0 * (0.875 * 50.5 + 1.625 * 249.5);
+                    assert!((r.value - integral).abs() < 1e-9, "{}", r.value);
+                }
+            }
+        }
+        stop.store(true, Ordering::Relaxed);
+        inst.join().unwrap().unwrap();
+    }
+}
+
 #[test]
 fn sim_kind_and_missing_port_are_clear_errors() {
     let cfg: SpotMeterConfig = toml::from_str("kind = \"sim\"").unwrap();
@@ -266,6 +313,34 @@ fn sim_kind_and_missing_port_are_clear_errors() {
         e.contains("bench photometer") && e.contains("nothing"),
         "{e}"
     );
+}
+
+#[test]
+fn malformed_replies_name_what_is_wrong() {
+    let sp = spec("format = \"spectrum\"\nprefix = \"S\"\nend = \"END\"\nerror_prefix = \"ERR\"");
+    let sc = spec("prefix = \"OK\"\nfield = 1\nerror_prefix = \"ER\"");
+    let cases = [
+        (&sp, "S\n400,1;400,2\nEND\n", "increase strictly"),
+        (&sp, "S\n400,1;500,2\n", "terminator"),
+        (&sp, "S\n400,1\nEND\n", "at least two"),
+        (&sp, "S\n400;500,2\nEND\n", "record 0"),
+        (&sp, "S\n-4,1;500,2\nEND\n", "wavelength"),
+        (&sp, "S\n400,nan;500,2\nEND\n", "finite"),
+        (&sp, "ERR 12\r", "reports an error"),
+        (&sc, "OK 1\r", "no field 1"),
+        (&sc, "OK 1 1e999\r", "not a finite number"),
+        (&sc, "KO 1 2\r", "start with `OK`"),
+        (&sc, "ER 5\r", "reports an error"),
+    ];
+    for (s, text, want) in cases {
+        let e = parse_reply(s, text).unwrap_err().to_string();
+        assert!(
+            e.contains(want) && e.starts_with("malformed reply"),
+            "{text:?}: {e}"
+        );
+    }
+    // A spectrum's error reply ends at its first line, as a scalar's does.
+    assert!(reply_complete(&sp, "ERR 12\r"));
 }
 
 fn spec(text: &str) -> ReplySpec {

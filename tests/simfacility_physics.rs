@@ -348,3 +348,132 @@ fn long_exposure_averages_the_frames_shown() {
     );
     assert!((white[k] as f64 - expected).abs() <= 2.0);
 }
+
+#[test]
+fn camera_files_a_campaign_gets() {
+    let f = facility("", "vignetting = 0.1\nprnu = 0.02\nk1 = -0.2\np2 = 0.001");
+    let dir = tempfile::tempdir().unwrap();
+    // Intrinsics: OpenCV's convention, pixel centres at integers.
+    let path = dir.path().join("intrinsics.toml");
+    f.write_camera_intrinsics(&path).unwrap();
+    let t: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let get = |k: &str| t[k].as_float().unwrap();
+    assert_eq!(
+        [
+            get("fx"),
+            get("fy"),
+            get("cx"),
+            get("cy"),
+            get("k1"),
+            get("p2")
+        ],
+        [4000.0, 4000.0, 19.5, 14.5, -0.2, 0.001]
+    );
+    // The camera's own flat, as a Gray32Float TIFF of the camera's size.
+    let tiff = dir.path().join("camera_flat.tif");
+    f.write_camera_flat(&tiff).unwrap();
+    let flat = optistim::facility::lut::FlatField::load(&tiff, (40, 30)).unwrap();
+    let own = f.camera_flat();
+    assert_eq!(flat.gains(), own.as_slice());
+    // Vignetting 1 − 0.1 r² / r²_corner times PRNU of 2 % rms: divide the
+    // vignetting out, the rest has mean 1 and rms 0.02.
+    let corner2 = 20.0f64.powi(2) + 15.0f64.powi(2);
+    let prnu: Vec<f64> = own
+        .iter()
+        .enumerate()
+        .map(|(k, &g)| {
+            let (x, y) = ((k % 40) as f64 + 0.5 - 20.0, (k / 40) as f64 + 0.5 - 15.0);
+            g as f64 / (1.0 - 0.1 * (x * x + y * y) / corner2)
+        })
+        .collect();
+    let n = prnu.len() as f64;
+    let mean = prnu.iter().sum::<f64>() / n;
+    let rms = (prnu.iter().map(|p| (p - mean).powi(2)).sum::<f64>() / n).sqrt();
+    // 1200 pixels: sampling error of the mean 0.0006, of the rms 2 %.
+    assert!((mean - 1.0).abs() < 0.003, "{mean}");
+    assert!((rms / 0.02 - 1.0).abs() < 0.1, "{rms}");
+}
+
+#[test]
+fn warm_up_and_drift_follow_the_virtual_clock() {
+    // Reading of full white at virtual time t (integration 0.1 s ending at
+    // t + 0.1, taken at its middle): 2 W m⁻² sr⁻¹ × (1 − a e^(−t/τ)) ×
+    // (1 + d t / 3600), with a = 5 %, τ = 100 s, d = 1 %/h.
+    let cfg = toml("", "").replace(
+        "spectrum = \"flat\"",
+        "spectrum = \"flat\"\nwarmup_amplitude = 0.05\nwarmup_time_constant = 100.0\ndrift_per_hour = 0.01",
+    );
+    let f = SimFacility::new(SimFacilityConfig::parse(&cfg, "t.toml").unwrap()).unwrap();
+    uniform(&f, 255);
+    for t in [10.0, 100.0, 3600.0] {
+        f.advance(t - f.now());
+        let got = f.meter().measure().unwrap().value;
+        let mid = t + 0.05;
+        let expected = 2.0 * (1.0 - 0.05 * (-mid / 100.0f64).exp()) * (1.0 + 0.01 * mid / 3600.0);
+        assert!(
+            (got / expected - 1.0).abs() < 1e-4,
+            "t {t}: {got} vs {expected}"
+        );
+    }
+}
+
+#[test]
+fn dark_levels_shift_the_spectrum_toward_the_blue() {
+    // Flat 380–780 nm white shifted 10 nm blue at level 0: the camera band
+    // (450–820 nm) then sees 450–770 nm of it.
+    let cfg = toml("", "").replace(
+        "spectrum = \"flat\"",
+        "spectrum = \"flat\"\nspectral_shift_nm = 10.0",
+    );
+    let f = SimFacility::new(SimFacilityConfig::parse(&cfg, "t.toml").unwrap()).unwrap();
+    let sun_ratio = planck_band(|_| 1.0) / planck_band(|l| l / (H * C));
+    let shifted = (770e-9f64.powi(2) - 450e-9f64.powi(2)) / (2.0 * H * C);
+    let expected = spectral_level(0.0) * shifted * sun_ratio;
+    let got = f.true_camera_effective_radiance(0, (32.0, 24.0));
+    assert!((got / expected - 1.0).abs() < 1e-6, "{got} vs {expected}");
+    // Full white is not shifted.
+    let white = spectral_level(255.0) * photons_per_flat() * sun_ratio;
+    let got = f.true_camera_effective_radiance(255, (32.0, 24.0));
+    assert!((got / white - 1.0).abs() < 1e-6, "{got} vs {white}");
+}
+
+#[test]
+fn screen_non_uniformity_reaches_the_camera() {
+    // 10 % corner falloff, +4 % gradient to the right: the camera's DN
+    // ratio between two pixels is the ratio of U at the screen points they
+    // see (the etendue ratio divided out).
+    let cfg = toml("", "").replace(
+        "spectrum = \"flat\"",
+        "spectrum = \"flat\"\nfalloff = 0.1\ngradient = [0.04, 0.0]",
+    );
+    let f = SimFacility::new(SimFacilityConfig::parse(&cfg, "t.toml").unwrap()).unwrap();
+    uniform(&f, 255);
+    let dn = capture(&f, 0.01);
+    let u = |x: f64, y: f64| {
+        let (nx, ny) = ((x - 32.0) / 32.0, (y - 24.0) / 24.0);
+        (1.0 - 0.05 * (nx * nx + ny * ny)) * (1.0 + 0.04 * nx)
+    };
+    let etendue = |i: usize, j: usize| {
+        let x0 = (i as f64 - 20.0) / 4000.0;
+        let y0 = (j as f64 - 15.0) / 4000.0;
+        let (xc, yc) = (x0 + 0.5 / 4000.0, y0 + 0.5 / 4000.0);
+        rect_solid_angle(x0, x0 + 1.0 / 4000.0, y0, y0 + 1.0 / 4000.0)
+            / (1.0 + xc * xc + yc * yc).sqrt()
+    };
+    // Camera pixel (i, j) centre sees screen (32 + 1.25 (i + 0.5 − 20), …).
+    let screen = |i: usize, j: usize| {
+        (
+            32.0 + 1.25 * (i as f64 + 0.5 - 20.0),
+            24.0 + 1.25 * (j as f64 + 0.5 - 15.0),
+        )
+    };
+    let (a, b) = ((20usize, 15usize), (38usize, 28usize));
+    let ratio = (dn[b.1 * 40 + b.0] as f64 / etendue(b.0, b.1))
+        / (dn[a.1 * 40 + a.0] as f64 / etendue(a.0, a.1));
+    let (sa, sb) = (screen(a.0, a.1), screen(b.0, b.1));
+    let expected = u(sb.0, sb.1) / u(sa.0, sa.1);
+    assert!(
+        (ratio / expected - 1.0).abs() < 2e-3,
+        "{ratio} vs {expected}"
+    );
+}

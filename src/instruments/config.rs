@@ -51,6 +51,7 @@ use super::camera::{CommandCamera, FilesCamera};
 use super::spot_meter::SerialSpotMeter;
 use super::{Camera, SpotMeter};
 use crate::error::{Error, Result};
+use crate::radiometry::spectrum::Table;
 
 /// Key prefix of the meter table, for error messages.
 pub const METER_KEY: &str = "calibrate.meter";
@@ -417,7 +418,16 @@ impl SpotMeterConfig {
         self.reply.validate(&k("reply"))
     }
 
-    /// Makes a relative `spectral_response` (and `port`) relative to `dir`.
+    /// The meter's spectral response M(λ) from `spectral_response`, if
+    /// given (CSV `wavelength_nm,response`; the table holds metres).
+    pub fn load_spectral_response(&self) -> Result<Option<Table>> {
+        self.spectral_response
+            .as_deref()
+            .map(Table::from_csv)
+            .transpose()
+    }
+
+    /// Makes a relative `spectral_response` relative to `dir`.
     pub fn resolve_paths(&mut self, dir: &Path) {
         if let Some(p) = &mut self.spectral_response {
             fix(p, dir);

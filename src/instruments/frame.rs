@@ -389,8 +389,13 @@ pub fn region_mean(
             .is_some_and(|e| e <= frame.height);
     if !inside || frame.data.len() != frame.width * frame.height {
         return Err(Error::Other(format!(
-            "pattern `{pattern}`: region {rect:?} is not inside the {} × {} frame",
-            frame.width, frame.height
+            "pattern `{pattern}`: region columns {}..{}, rows {}..{} is not inside the {} × {} frame",
+            rect.x,
+            rect.x.saturating_add(rect.width),
+            rect.y,
+            rect.y.saturating_add(rect.height),
+            frame.width,
+            frame.height
         )));
     }
     let corrected;
@@ -401,26 +406,33 @@ pub fn region_mean(
         }
         None => &frame.data,
     };
-    let mut saturated = 0;
-    let (mut sum, mut sum2) = (0.0f64, 0.0f64);
-    for row in rect.y..rect.y + rect.height {
-        let start = row * frame.width + rect.x;
-        for i in start..start + rect.width {
-            if frame.data[i] >= frame.saturation_dn {
-                saturated += 1;
-            }
-            let v = values[i] as f64;
-            sum += v;
-            sum2 += v * v;
-        }
-    }
+    let rows = || {
+        (rect.y..rect.y + rect.height).map(|r| {
+            let start = r * frame.width + rect.x;
+            start..start + rect.width
+        })
+    };
+    let saturated: usize = rows()
+        .map(|r| {
+            frame.data[r]
+                .iter()
+                .filter(|&&v| v >= frame.saturation_dn)
+                .count()
+        })
+        .sum();
     if saturated > 0 {
         return Err(saturated_error(pattern, saturated, frame.saturation_dn));
     }
     let n = (rect.width * rect.height) as f64;
-    let mean = sum / n;
+    let sum_of = |f: &dyn Fn(f64) -> f64| -> f64 {
+        rows()
+            .map(|r| values[r].iter().map(|&v| f(v as f64)).sum::<f64>())
+            .sum()
+    };
+    let mean = sum_of(&|v| v) / n;
+    // Two passes: no cancellation for a bright, quiet region.
     let var = if n > 1.0 {
-        ((sum2 - n * mean * mean) / (n - 1.0)).max(0.0)
+        sum_of(&|v| (v - mean) * (v - mean)) / (n - 1.0)
     } else {
         0.0
     };

@@ -8,6 +8,17 @@
 //! | [`SpotMeter`] | a photometer, radiometer or spectroradiometer on a serial port, speaking a configurable line protocol | the simulated facility's meter (in process, or over a pseudo-terminal) |
 //! | [`Camera`] | the facility camera, through its acquisition software (`files`) or a capture command (`command`) | the simulated facility's camera |
 //!
+//! | module | owns |
+//! |---|---|
+//! | [`config`] | the `[calibrate.meter]` / `[calibrate.camera]` tables, their checks, `open_spot_meter` / `open_camera` for the real kinds |
+//! | [`spot_meter`] | the serial meter and its line protocol (also spoken by the simulated meter) |
+//! | [`camera`] | the `files` and `command` backends |
+//! | [`frame`] | frame files (PNG, TIFF, FITS) and the statistics a calibration takes of frames |
+//! | [`intrinsics`] | the camera intrinsics file (OpenCV K and distortion), pixel ↔ direction |
+//!
+//! The keys, the reply spec and the formats are described in
+//! docs/INSTRUMENTS.md.
+//!
 //! Units: a spot meter reading is the instrument's value times its
 //! configured unit scale (for a radiometer, W m⁻² sr⁻¹ in its own band); a
 //! spectrum is W m⁻² sr⁻¹ nm⁻¹ against wavelength in nm. Camera frames are in

@@ -111,7 +111,17 @@ fn parse_spectrum(spec: &ReplySpec, rest: &str, reply: &str) -> Result<SpotReadi
                     reply,
                 ));
             }
-            points.push(parse_pair(spec, record, points.len(), reply)?);
+            let (w, v) = parse_pair(spec, record, points.len(), reply)?;
+            if points.last().is_some_and(|p| p.0 >= w) {
+                return Err(malformed(
+                    &format!(
+                        "record {}: wavelengths must increase strictly",
+                        points.len()
+                    ),
+                    reply,
+                ));
+            }
+            points.push((w, v));
         }
     }
     if !ended {
@@ -443,7 +453,7 @@ impl SerialSpotMeter {
                     .unwrap_or_else(|| "reply too long".into());
                 let why = why.split("; reply").next().unwrap_or("").to_string();
                 self.error(&format!(
-                    "{why} to command `{cmd}` ({tries} attempts); reply `{}`",
+                    "{why} (command `{cmd}`, {tries} attempts); reply `{}`",
                     abbreviate(&got, QUOTE)
                 ))
             }

@@ -10,7 +10,8 @@
 //! undistorted into directions: two spherical triangles), θ_ij the angle of
 //! its centre's direction to the boresight, g_ij the camera's own flat, and
 //! ⟨·⟩ the mean over the `supersample`² points of the pixel, each seeing
-//! the screen interpolated bilinearly between pixel centres: a triangle
+//! the screen (each screen pixel's rate × U at its centre) interpolated
+//! bilinearly between pixel centres: a triangle
 //! blur one screen pixel wide, standing in for the optics' PSF, which keeps
 //! shifts smaller than the sample spacing visible (point samples of the
 //! screen's piecewise-constant image would alias them away). Without distortion A Ω cos θ is exactly the
@@ -25,6 +26,7 @@ use super::config::CameraTruth;
 use super::noise::Rng;
 use super::optics::{triangle_solid_angle, CameraOptics, Collimator};
 use super::screen::ScreenPhysics;
+use crate::error::{Error, Result};
 
 /// Random stream of the PRNU map.
 const PRNU_STREAM: u64 = 1;
@@ -56,14 +58,16 @@ pub struct CameraModel {
 }
 
 impl CameraModel {
-    /// Builds the tables (once per facility).
-    pub fn new(cfg: &CameraTruth, collimator: &Collimator, seed: u64) -> CameraModel {
+    /// Builds the tables (once per facility). A distortion that cannot be
+    /// inverted somewhere on the detector is an error naming the corner.
+    pub fn new(cfg: &CameraTruth, collimator: &Collimator, seed: u64) -> Result<CameraModel> {
         let optics = CameraOptics::from_config(cfg);
         let [w, h] = cfg.resolution;
         let tans: Vec<(f64, f64)> = (0..(w + 1) * (h + 1))
             .into_par_iter()
             .map(|k| optics.undistort_pixel((k % (w + 1)) as f64, (k / (w + 1)) as f64))
             .collect();
+        check_inverse(&optics, &tans, w)?;
         let corners = tans
             .par_iter()
             .map(|&(x, y)| {
@@ -87,13 +91,13 @@ impl CameraModel {
             })
             .collect();
         let flat = own_flat(cfg, seed);
-        CameraModel {
+        Ok(CameraModel {
             cfg: cfg.clone(),
             optics,
             corners,
             etendue,
             flat,
-        }
+        })
     }
 
     /// `(width, height)`.
@@ -126,11 +130,10 @@ impl CameraModel {
         (p(0), p(1))
     }
 
-    /// Noise-free electron rate of pixel (i, j) before the flat and the
-    /// etendue: the mean over its sample points of τ ⟨W ∫ S R dλ⟩ U.
-    fn mean_rate(&self, i: usize, j: usize, screen: &ScreenPhysics, frames: &[WindowFrame]) -> f64 {
+    /// Electron rate per unit etendue of pixel (i, j) before τ and the
+    /// flat: the mean over its sample points of the screen's `image`.
+    fn mean_rate(&self, i: usize, j: usize, image: &[f32], (sw, sh): (usize, usize)) -> f64 {
         let n = self.cfg.supersample;
-        let [sw, sh] = screen.config().resolution;
         let mut sum = 0.0;
         for sj in 0..n {
             for si in 0..n {
@@ -140,13 +143,7 @@ impl CameraModel {
                 if !(u >= 0.0 && v >= 0.0 && u < sw as f64 && v < sh as f64) {
                     continue; // the screen's bezel: dark
                 }
-                let shown = bilinear(u, v, sw, sh, |p| {
-                    frames
-                        .iter()
-                        .map(|f| f.weight * f.warmup * screen.camera_rate[f.levels[p] as usize])
-                        .sum()
-                });
-                sum += shown * screen.uniformity(u, v);
+                sum += bilinear(u, v, sw, sh, |p| image[p] as f64);
             }
         }
         sum / (n * n) as f64
@@ -161,10 +158,12 @@ impl CameraModel {
         exposure: f64,
     ) -> Vec<f64> {
         let (w, h) = self.size();
+        let image = screen_image(screen, frames);
+        let [sw, sh] = screen.config().resolution;
         (0..w * h)
             .into_par_iter()
             .map(|k| {
-                let rate = self.mean_rate(k % w, k / w, screen, frames);
+                let rate = self.mean_rate(k % w, k / w, &image, (sw, sh));
                 exposure * transmission * self.etendue[k] * self.flat[k] as f64 * rate
             })
             .collect()
@@ -203,6 +202,45 @@ impl CameraModel {
                 (e * c.gain + c.bias_dn).round().clamp(0.0, max_dn) as f32
             })
             .collect()
+    }
+}
+
+/// Per screen pixel, ⟨W ∫ S R dλ⟩ over the exposure × U at its centre
+/// [e⁻ s⁻¹ m⁻² sr⁻¹]: what the camera's samples interpolate.
+fn screen_image(screen: &ScreenPhysics, frames: &[WindowFrame]) -> Vec<f32> {
+    let [sw, sh] = screen.config().resolution;
+    let mut image = vec![0.0f32; sw * sh];
+    image.par_chunks_mut(sw).enumerate().for_each(|(y, row)| {
+        for (x, out) in row.iter_mut().enumerate() {
+            let p = y * sw + x;
+            let shown: f64 = frames
+                .iter()
+                .map(|f| f.weight * f.warmup * screen.camera_rate[f.levels[p] as usize])
+                .sum();
+            *out = (shown * screen.uniformity(x as f64 + 0.5, y as f64 + 0.5)) as f32;
+        }
+    });
+    image
+}
+
+/// Every corner's direction must map back onto its pixel position: a
+/// distortion that folds over has no inverse there.
+fn check_inverse(optics: &CameraOptics, tans: &[(f64, f64)], w: usize) -> Result<()> {
+    let bad = tans.par_iter().enumerate().find_any(|(k, &(x, y))| {
+        let (u, v) = optics.project(x, y);
+        let (i, j) = ((k % (w + 1)) as f64, (k / (w + 1)) as f64);
+        !((u - i).abs() < 1e-6 && (v - j).abs() < 1e-6)
+    });
+    match bad {
+        Some((k, _)) => Err(Error::invalid(
+            "camera.k1",
+            format!(
+                "the distortion (k1, k2, p1, p2) cannot be inverted at pixel corner ({}, {}): it folds over on the detector",
+                k % (w + 1),
+                k / (w + 1)
+            ),
+        )),
+        None => Ok(()),
     }
 }
 

@@ -14,6 +14,12 @@ use crate::error::{Error, Result};
 
 /// Largest screen or camera side, pixels: keeps every buffer bounded.
 pub const MAX_SIDE: usize = 16_384;
+/// Most camera pixels (4096²): the camera's tables take ~44 bytes a pixel.
+pub const MAX_CAMERA_PIXELS: usize = 1 << 24;
+/// Most screen pixels (e.g. 8192 × 4096).
+pub const MAX_SCREEN_PIXELS: usize = 1 << 25;
+/// Most bytes of kept frames (2 bytes a screen pixel per frame).
+pub const MAX_HISTORY_BYTES: usize = 1 << 29;
 /// Largest supersampling factor per axis.
 pub const MAX_SUPERSAMPLE: usize = 8;
 /// Largest number of frames kept for exposure averaging.
@@ -252,6 +258,17 @@ fn side(key: &str, value: [usize; 2]) -> Result<()> {
     }
 }
 
+fn pixels(key: &str, value: [usize; 2], max: usize) -> Result<()> {
+    if value[0] * value[1] <= max {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            key,
+            format!("{value:?}: more than {max} pixels"),
+        ))
+    }
+}
+
 fn band(key: &str, b: [f64; 2]) -> Result<()> {
     in_range(key, b[0], 100.0, 3000.0)?;
     in_range(key, b[1], 100.0, 3000.0)?;
@@ -271,6 +288,7 @@ fn response(key: &str, r: &ResponseSpec) -> Result<()> {
 impl ScreenTruth {
     fn validate(&self) -> Result<()> {
         side("screen.resolution", self.resolution)?;
+        pixels("screen.resolution", self.resolution, MAX_SCREEN_PIXELS)?;
         if !matches!(self.bits, 8 | 10) {
             return Err(Error::invalid("screen.bits", "must be 8 or 10"));
         }
@@ -298,10 +316,18 @@ impl ScreenTruth {
             1e6,
         )?;
         in_range("screen.drift_per_hour", self.drift_per_hour, -0.5, 0.5)?;
-        if !(1..=MAX_HISTORY).contains(&self.history_frames) {
+        let frame_bytes = 2 * self.resolution[0] * self.resolution[1];
+        if !(1..=MAX_HISTORY).contains(&self.history_frames)
+            || self.history_frames * frame_bytes > MAX_HISTORY_BYTES
+        {
             return Err(Error::invalid(
                 "screen.history_frames",
-                format!("{} is not in 1..={MAX_HISTORY}", self.history_frames),
+                format!(
+                    "{} is not in 1..={}: at most {MAX_HISTORY} frames and {} MiB of frames",
+                    self.history_frames,
+                    MAX_HISTORY.min(MAX_HISTORY_BYTES / frame_bytes),
+                    MAX_HISTORY_BYTES >> 20
+                ),
             ));
         }
         Ok(())
@@ -350,6 +376,7 @@ impl CollimatorTruth {
 impl CameraTruth {
     fn validate(&self) -> Result<()> {
         side("camera.resolution", self.resolution)?;
+        pixels("camera.resolution", self.resolution, MAX_CAMERA_PIXELS)?;
         let [w, h] = self.resolution;
         positive("camera.fx", self.fx, 1e7)?;
         positive("camera.fy", self.fy, 1e7)?;
@@ -434,9 +461,13 @@ impl MeterTruth {
 
 /// One-line message of a TOML error: its line and what is wrong.
 fn toml_error(text: &str, e: &toml::de::Error) -> String {
-    let line = e
-        .span()
-        .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+    let line = e.span().map(|s| {
+        text.as_bytes()[..s.start.min(text.len())]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count()
+            + 1
+    });
     let msg = e.message().replace('\n', " ");
     match line {
         Some(l) => format!("line {l}: {msg}"),

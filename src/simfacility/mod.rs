@@ -6,7 +6,8 @@
 //! It owns the *truth* (configured in `configs/simfacility.toml`, see
 //! `docs/SIMFACILITY.md`) and implements the same seams as the hardware:
 //! [`Display`] ([`SimScreen`]), [`Camera`] ([`SimCamera`]) and
-//! [`SpotMeter`] ([`SimMeter`]). All handles share one state (the frames shown and a virtual
+//! [`SpotMeter`] ([`SimMeter`], also served over a pseudo-terminal by
+//! [`pty`]). All handles share one state (the frames shown and a virtual
 //! clock) behind a mutex: a `present` advances the clock by one refresh, a
 //! capture by its exposure, a meter reading by its integration time, never
 //! by sleeping.
@@ -18,11 +19,13 @@
 //! | [`optics`] | camera intrinsics and distortion, collimator and misalignment |
 //! | [`camera`] | the camera's tables and detector chain |
 //! | [`noise`] | counter-based random numbers |
+//! | [`pty`] | the spot meter served over a pseudo-terminal in a real meter's line protocol |
 
 pub mod camera;
 pub mod config;
 pub mod noise;
 pub mod optics;
+pub mod pty;
 pub mod screen;
 
 use std::collections::VecDeque;
@@ -91,7 +94,7 @@ impl SimFacility {
         let meter = MeterResponse::from_config(&cfg.meter)?;
         let screen = ScreenPhysics::new(&cfg.screen, &response, &meter)?;
         let collimator = Collimator::from_config(&cfg.screen, &cfg.collimator);
-        let camera = CameraModel::new(&cfg.camera, &collimator, cfg.seed);
+        let camera = CameraModel::new(&cfg.camera, &collimator, cfg.seed)?;
         let spot = spot_pixels(&cfg);
         let [w, h] = cfg.screen.resolution;
         let state = State {
@@ -197,6 +200,31 @@ impl SimFacility {
     pub fn write_camera_flat(&self, path: impl AsRef<Path>) -> Result<()> {
         let (w, h) = self.model.camera.size();
         FlatField::from_gains(w, h, self.camera_flat())?.save(path)
+    }
+
+    /// Writes the camera's intrinsics file (TOML `fx, fy, cx, cy, k1, k2,
+    /// p1, p2, k3` with `cx, cy` in OpenCV's convention, pixel centres at
+    /// integers, as OpenCV's calibration writes them: the project's
+    /// principal point − 0.5), what a campaign gets from the camera's own
+    /// calibration.
+    pub fn write_camera_intrinsics(&self, path: impl AsRef<Path>) -> Result<()> {
+        let path = path.as_ref();
+        let c = &self.model.cfg.camera;
+        let text = format!(
+            "# Intrinsics of the simulated facility camera (OpenCV model; cx, cy with\n\
+             # pixel centres at integers, as OpenCV writes them).\n\
+             fx = {:?}\nfy = {:?}\ncx = {:?}\ncy = {:?}\n\
+             k1 = {:?}\nk2 = {:?}\np1 = {:?}\np2 = {:?}\nk3 = 0.0\n",
+            c.fx,
+            c.fy,
+            c.cx - 0.5,
+            c.cy - 0.5,
+            c.k1,
+            c.k2,
+            c.p1,
+            c.p2
+        );
+        std::fs::write(path, text).map_err(|e| Error::io(path, e))
     }
 
     /// Noise-free meter reading of a uniform screen at `level`, now.
@@ -493,7 +521,7 @@ impl RecordingScreen {
 impl Display for RecordingScreen {
     fn present(&mut self, frame: &[u32]) -> Result<Instant> {
         let at = self.screen.present(frame)?;
-        if self.shown % self.every == 0 {
+        if self.shown.is_multiple_of(self.every) {
             let f = &self.screen.facility;
             let shot = f.capture_last(f.model.cfg.camera.exposure)?;
             let path = self.dir.join(format!("frame_{:06}.png", self.shown));

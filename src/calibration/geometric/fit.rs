@@ -103,9 +103,9 @@ pub fn basis(degree: usize, xy: [f64; 2]) -> Vec<f64> {
     };
     let (px, py) = (legendre(xy[0]), legendre(xy[1]));
     let mut out = Vec::new();
-    for j in 0..=degree {
-        for k in 0..=degree - j {
-            out.push(px[j] * py[k]);
+    for (j, pj) in px.iter().enumerate().take(degree + 1) {
+        for pk in py.iter().take(degree + 1 - j) {
+            out.push(pj * pk);
         }
     }
     out
@@ -351,7 +351,7 @@ fn fit_correction(
         .iter()
         .map(|&i| basis(d, model.legendre_xy(uv[i][0], uv[i][1])))
         .collect();
-    for axis in 0..2 {
+    for axis in [0, 1] {
         let y: Vec<f64> = idx
             .iter()
             .map(|&i| {

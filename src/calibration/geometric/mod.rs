@@ -1,7 +1,8 @@
 //! Geometric calibration of the screen seen through the collimator: dot
 //! patterns at known screen positions are shown and imaged by the facility
 //! camera, the dots detected to sub-pixel accuracy and identified, turned
-//! into camera-frame directions with the camera's intrinsics, and a smooth
+//! into camera-frame directions with the camera's intrinsics
+//! ([`CameraIntrinsics`]), and a smooth
 //! map screen (u, v) → (tan_x, tan_y) fitted to them; the result is the
 //! `calibration.geometry` CSV that `run` reads
 //! ([`GeometryCalibration`](crate::facility::geometry::GeometryCalibration)),
@@ -11,12 +12,10 @@
 //! |---|---|
 //! | [`patterns`] | the dot grid, the anchor dots, drawing them into frames |
 //! | [`dots`] | detection and sub-pixel centroids in a camera frame |
-//! | [`camera_model`] | OpenCV intrinsics: pixel ↔ direction |
 //! | [`matching`] | which detection is which grid dot |
 //! | [`fit`] | the model (homography + radial distortion + correction) and its robust fit |
 //! | [`output`] | the geometry CSV, the JSON report, the quiver plot |
 
-pub mod camera_model;
 pub mod dots;
 pub mod fit;
 pub mod matching;
@@ -25,19 +24,20 @@ pub mod patterns;
 
 use std::path::{Path, PathBuf};
 
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::facility::display::Display;
+use crate::instruments::intrinsics::CameraIntrinsics;
 use crate::instruments::{Camera, CameraFrame, CaptureRequest};
-use camera_model::Intrinsics;
 use dots::{Blob, Signal};
 use fit::{apply_homography, normalise, Fit, FitSettings};
 use matching::AnchorSighting;
 use patterns::{DotGrid, DotShape};
 
 /// `[calibrate.geometric]`: the dot patterns, the camera settings and the
-/// fit. Every key but `intrinsics` has a default.
+/// fit. Every key has a default.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct GeometricConfig {
@@ -61,11 +61,17 @@ pub struct GeometricConfig {
     /// Camera exposure, s (0 < exposure ≤ 100).
     #[serde(default = "default_exposure")]
     pub exposure: f64,
-    /// Wait after showing a pattern before capturing it, s (0–60).
-    #[serde(default)]
+    /// Wait after showing a pattern before capturing it, s (0–60): the
+    /// display's latency and the panel's response (the simulated facility
+    /// needs none).
+    #[serde(default = "default_settle")]
     pub settle: f64,
-    /// Camera intrinsics file (OpenCV K and distortion).
-    pub intrinsics: PathBuf,
+    /// Camera intrinsics file (docs/INSTRUMENTS.md; OpenCV K and
+    /// distortion). Absent: the caller passes the intrinsics
+    /// ([`calibrate_geometric_with`]; the CLI takes
+    /// `calibrate.camera.intrinsics`).
+    #[serde(default)]
+    pub intrinsics: Option<PathBuf>,
     /// Match radius as a fraction of the predicted distance between
     /// neighbouring dots (0.05–0.5).
     #[serde(default = "default_gate")]
@@ -112,6 +118,9 @@ fn default_bits() -> u32 {
 fn default_exposure() -> f64 {
     0.01
 }
+fn default_settle() -> f64 {
+    0.1
+}
 fn default_gate() -> f64 {
     0.3
 }
@@ -138,14 +147,23 @@ impl GeometricConfig {
     /// The defaults with this intrinsics file.
     pub fn with_intrinsics(intrinsics: impl Into<PathBuf>) -> GeometricConfig {
         GeometricConfig {
+            intrinsics: Some(intrinsics.into()),
+            ..GeometricConfig::default()
+        }
+    }
+}
+
+impl Default for GeometricConfig {
+    fn default() -> GeometricConfig {
+        GeometricConfig {
             spacing_px: default_spacing(),
             radius_px: default_radius(),
             shape: default_shape(),
             level: default_level(),
             bits: default_bits(),
             exposure: default_exposure(),
-            settle: 0.0,
-            intrinsics: intrinsics.into(),
+            settle: default_settle(),
+            intrinsics: None,
             gate: default_gate(),
             iterations: default_iterations(),
             clip_sigma: default_clip(),
@@ -155,12 +173,16 @@ impl GeometricConfig {
             output: default_output(),
         }
     }
+}
 
+impl GeometricConfig {
     /// Makes a relative `intrinsics` path relative to `dir` (the directory
     /// of the TOML file it came from).
     pub fn resolve_paths(&mut self, dir: &Path) {
-        if self.intrinsics.is_relative() {
-            self.intrinsics = dir.join(&self.intrinsics);
+        if let Some(p) = &mut self.intrinsics {
+            if p.is_relative() {
+                *p = dir.join(&*p);
+            }
         }
     }
 
@@ -401,20 +423,41 @@ fn dots_of(
     Ok((kept, found, rejected, typical))
 }
 
+/// The frames must have the size the intrinsics were measured at.
+fn check_camera_size(captures: &Captures, intrinsics: &CameraIntrinsics) -> Result<()> {
+    let f = &captures.dark;
+    if (f.width, f.height) != (intrinsics.width, intrinsics.height) {
+        return Err(Error::invalid(
+            "camera frame",
+            format!(
+                "pattern {DARK_PATTERN}: {}×{} frame, the intrinsics are for a {}×{} camera",
+                f.width, f.height, intrinsics.width, intrinsics.height
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Detects, identifies and fits: the calibration from its frames alone.
 pub fn solve(
     grid: &DotGrid,
     captures: &Captures,
-    intrinsics: &Intrinsics,
+    intrinsics: &CameraIntrinsics,
     cfg: &GeometricConfig,
 ) -> Result<Solution> {
+    check_camera_size(captures, intrinsics)?;
+    let direction = |p: [f64; 2]| {
+        intrinsics
+            .pixel_to_direction(p[0], p[1])
+            .map(|d| [d.x / d.z, d.y / d.z])
+    };
     let (blobs, found, rejected, typical) =
         dots_of(&captures.grid, &captures.dark, GRID_PATTERN, None)?;
     // Directions of the grid detections (blobs where the intrinsics do not
     // invert are outside the calibrated field and dropped).
     let seen: Vec<([f64; 2], [f64; 2])> = blobs
         .iter()
-        .filter_map(|b| intrinsics.direction(b.centre).map(|t| (b.centre, t)))
+        .filter_map(|b| direction(b.centre).map(|t| (b.centre, t)))
         .collect();
     let tans: Vec<[f64; 2]> = seen.iter().map(|s| s.1).collect();
 
@@ -429,7 +472,7 @@ pub fn solve(
             [one] => Some(one),
             [first, second, ..] => (second.flux < 0.5 * first.flux).then_some(first),
         };
-        if let Some(t) = clear.and_then(|blob| intrinsics.direction(blob.centre)) {
+        if let Some(t) = clear.and_then(|blob| direction(blob.centre)) {
             sightings.push(AnchorSighting { dot: *dot, tan: t });
         }
     }
@@ -441,7 +484,7 @@ pub fn solve(
     let settings = FitSettings {
         clip_sigma: cfg.clip_sigma,
         // 0.001 camera px.
-        floor: 1e-3 / intrinsics.fx.max(intrinsics.fy),
+        floor: 1e-3 / intrinsics.camera_matrix[0][0].max(intrinsics.camera_matrix[1][1]),
         correction_degree: cfg.correction_degree,
     };
     // The matched region: a disc about the central anchor, twice the
@@ -501,7 +544,9 @@ pub fn solve(
             let [u, v] = grid.centres[dot];
             let (pixel, t) = seen[k];
             let m = fit.model.direction(u, v);
-            let p = intrinsics.project(m);
+            let p = intrinsics
+                .direction_to_pixel(DVec3::new(m[0], m[1], 1.0))
+                .map_or([f64::NAN; 2], |p| [p.0, p.1]);
             DotResidual {
                 u_px: u,
                 v_px: v,
@@ -532,13 +577,14 @@ pub struct GeometricReport {
     pub date_utc: String,
     pub software: String,
     pub camera: String,
-    pub intrinsics: PathBuf,
+    /// The intrinsics file (None: passed by the caller).
+    pub intrinsics: Option<PathBuf>,
     pub screen: [usize; 2],
     pub config: GeometricConfig,
     /// Files written.
     pub geometry_csv: PathBuf,
     pub report_json: PathBuf,
-    /// The residual plot (None until plotted).
+    /// The residual quiver plot.
     pub quiver_png: Option<PathBuf>,
     pub dots_shown: usize,
     pub blobs_detected: usize,
@@ -580,18 +626,37 @@ fn capture(
     })
 }
 
-/// Runs the geometric calibration: shows the black screen, the dot grid
-/// and each anchor dot, captures each, solves, and writes the geometry CSV,
-/// `geometric_report.json` and `geometric_residuals.png` into `out_dir`.
-/// The screen is left black.
+/// Runs the geometric calibration with the intrinsics file of
+/// `cfg.intrinsics` (see [`calibrate_geometric_with`]).
 pub fn calibrate_geometric(
     display: &mut dyn Display,
     camera: &mut dyn Camera,
     cfg: &GeometricConfig,
     out_dir: &Path,
 ) -> Result<GeometricReport> {
+    let path = cfg.intrinsics.as_ref().ok_or_else(|| {
+        Error::invalid(
+            "calibrate.geometric.intrinsics",
+            "missing: the camera's intrinsics file turns dot centroids into directions",
+        )
+    })?;
+    let intrinsics = CameraIntrinsics::load(path)?;
+    calibrate_geometric_with(display, camera, &intrinsics, cfg, out_dir)
+}
+
+/// Runs the geometric calibration: shows the black screen, the dot grid
+/// and each anchor dot, captures each, solves, and writes the geometry CSV,
+/// `geometric_report.json` and `geometric_residuals.png` into `out_dir`.
+/// The screen is left black.
+pub fn calibrate_geometric_with(
+    display: &mut dyn Display,
+    camera: &mut dyn Camera,
+    intrinsics: &CameraIntrinsics,
+    cfg: &GeometricConfig,
+    out_dir: &Path,
+) -> Result<GeometricReport> {
     cfg.validate()?;
-    let intrinsics = output::load_intrinsics(&cfg.intrinsics)?;
+    intrinsics.validate()?;
     let screen = display.size();
     let grid = cfg.grid(screen);
     let black = grid.draw(std::iter::empty());
@@ -614,7 +679,7 @@ pub fn calibrate_geometric(
         grid: all,
         anchors,
     };
-    let solution = solve(&grid, &captures, &intrinsics, cfg)?;
+    let solution = solve(&grid, &captures, intrinsics, cfg)?;
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     output::write_all(&solution, &grid, cfg, &camera.describe(), out_dir)
 }
