@@ -12,7 +12,7 @@
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
-//! | [`calibration`] | `optistim calibrate`: the screen's LUT, flat field and verification, measured through the instruments |
+//! | [`calibration`] | `optistim calibrate`: the screen's LUT, flat field, geometry and verification, measured through the instruments |
 //! | [`simfacility`] | a seeded physics model of screen, collimator, camera and spot meter: the truth to rehearse calibration and `run` on |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
 //! | [`figures`] | small PNG figures for reports: curves with residuals, heatmaps, quivers |

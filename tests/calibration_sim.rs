@@ -113,3 +113,97 @@ fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent()
     );
     assert!(rms < 0.005, "LUT RMS error {:.3} %", 100.0 * rms);
 }
+
+/// The flat field of the simulated facility, with the geometry written from
+/// the facility's true map and its camera's own flat, has the shape of the
+/// facility's true non-uniformity (falloff and gradient): the ratio of the
+/// recovered gain to the truth is constant over the area the camera sees.
+#[test]
+fn flat_field_recovers_the_simulated_screen_non_uniformity() {
+    use optistim::calibration::flat::{self, FlatSetup};
+    use optistim::facility::geometry::GeometryCalibration;
+    // A 128 × 128 camera with 8× larger pixels: the bundled 6° field.
+    let path = Path::new("configs/simfacility.toml");
+    let text = std::fs::read_to_string(path)
+        .unwrap()
+        .replace("resolution = [1024, 1024]", "resolution = [128, 128]")
+        .replace("fx = 10247.4", "fx = 1280.925")
+        .replace("fy = 10247.4", "fy = 1280.925")
+        .replace("cx = 512.0", "cx = 64.0")
+        .replace("cy = 512.0", "cy = 64.0")
+        .replace("supersample = 3", "supersample = 4");
+    let mut scfg = SimFacilityConfig::parse(&text, path).unwrap();
+    scfg.resolve_paths(Path::new("configs"));
+    let sim = SimFacility::new(scfg).unwrap();
+    sim.advance(3600.0);
+    let dir = tempfile::tempdir().unwrap();
+    // The geometry file from the truth, nodes every 32 px.
+    let mut g = String::from("u_px,v_px,tan_x,tan_y\n");
+    let us: Vec<usize> = (0..1920).step_by(32).chain([1920]).collect();
+    let vs: Vec<usize> = (0..1080).step_by(32).chain([1080]).collect();
+    for &v in &vs {
+        for &u in &us {
+            let (tx, ty) = sim.true_geometry(u as f64, v as f64);
+            g.push_str(&format!("{u},{v},{tx:?},{ty:?}\n"));
+        }
+    }
+    std::fs::write(dir.path().join("g.csv"), g).unwrap();
+    let geometry = GeometryCalibration::load(dir.path().join("g.csv"), (1920, 1080)).unwrap();
+    // The camera's intrinsics, inverted here by fixed-point iteration.
+    let (f, c, k1) = (1280.925, 64.0, -0.05);
+    let direction = move |x: f64, y: f64| {
+        let (xd, yd) = ((x - c) / f, (y - c) / f);
+        let (mut tx, mut ty) = (xd, yd);
+        for _ in 0..50 {
+            let r = 1.0 + k1 * (tx * tx + ty * ty);
+            tx = xd / r;
+            ty = yd / r;
+        }
+        (tx, ty)
+    };
+    let cfg = CalibrateConfig::parse(CALIBRATE, "c.toml", 8).unwrap();
+    let setup = FlatSetup {
+        cfg: &cfg,
+        bits: 8,
+        screen: (1920, 1080),
+        pixel_direction: &direction,
+        geometry: &geometry,
+        camera_flat: Some(sim.camera_flat()),
+        dark: None,
+    };
+    let mut ckpt = Checkpoint::open(&dir.path().join("f.jsonl"), "fp", "flat", false).unwrap();
+    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let clock = sim.clone();
+    let mut wait = move |s: f64| clock.advance(s);
+    let mut inst = Instruments {
+        display: &mut display,
+        camera: &mut camera,
+        meter: None,
+        wait: &mut wait,
+    };
+    let (gains, report) = flat::run(&mut inst, &setup, &mut ckpt).unwrap();
+    let [u0, v0, u1, v1] = report.seen;
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    for j in 1..20 {
+        for i in 1..20 {
+            let u = u0 + (u1 - u0) * i as f64 / 20.0;
+            let v = v0 + (v1 - v0) * j as f64 / 20.0;
+            let truth = sim.true_camera_effective_radiance(255, (u, v));
+            let gain = gains[v as usize * 1920 + u as usize] as f64;
+            let ratio = gain / truth;
+            lo = lo.min(ratio);
+            hi = hi.max(ratio);
+        }
+    }
+    println!(
+        "simulated flat field: gain/truth varies by {:.3} % over the seen area {:?} (13-point non-uniformity {:.2} %)",
+        100.0 * (hi / lo - 1.0),
+        report.seen,
+        report.nonuniformity_13_percent
+    );
+    assert!(
+        hi / lo - 1.0 < 0.003,
+        "gain/truth spread {:.3} %",
+        100.0 * (hi / lo - 1.0)
+    );
+}

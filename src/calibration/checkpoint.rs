@@ -176,10 +176,10 @@ fn parse(
                     format!(
                         "checkpoint of a different campaign ({} {}…, this one is {} {}…): \
                          the [calibrate] settings or the display changed; move it away to start again",
-                        h.routine,
-                        &h.campaign[..h.campaign.len().min(12)],
+                        crate::instruments::config::abbreviate(&h.routine, 40),
+                        h.campaign.chars().take(12).collect::<String>(),
                         routine,
-                        &fingerprint[..fingerprint.len().min(12)]
+                        fingerprint.chars().take(12).collect::<String>()
                     ),
                 ));
             }
@@ -221,6 +221,16 @@ mod tests {
     #[derive(Serialize, serde::Deserialize, PartialEq, Debug)]
     struct M {
         dn: f64,
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+        /// Any file content: Ok or a named error, never a panic.
+        #[test]
+        fn parse_never_panics(text in "(\\{\"campaign\":\"[a-zé]{0,14}\",\"routine\":\"r\"\\}\n)?[ -~é\n]{0,200}") {
+            let mut done = HashMap::new();
+            let _ = parse(Path::new("c.jsonl"), &text, "abc", "r", &mut done);
+        }
     }
 
     #[test]

@@ -157,12 +157,31 @@ fn pixel_map(setup: &FlatSetup, width: usize, height: usize) -> Result<PixelMap>
             (s, e)
         })
         .collect();
-    let mut screen = Vec::with_capacity(width * height);
+    let mut all = Vec::with_capacity(width * height);
     let mut etendue = Vec::with_capacity(width * height);
     for (s, e) in rows {
-        screen.extend(s);
+        all.extend(s);
         etendue.extend(e);
     }
+    // A pixel at the screen's edge also sees the bezel: use only pixels
+    // whose four neighbours see the screen too.
+    let screen: Vec<Option<(f64, f64)>> = (0..width * height)
+        .map(|k| {
+            let (i, j) = (k % width, k / width);
+            let inside = i > 0
+                && j > 0
+                && i + 1 < width
+                && j + 1 < height
+                && [k - 1, k + 1, k - width, k + width]
+                    .iter()
+                    .all(|&n| all[n].is_some());
+            if inside {
+                all[k]
+            } else {
+                None
+            }
+        })
+        .collect();
     let mean = etendue.iter().sum::<f64>() / etendue.len() as f64;
     if !(mean.is_finite() && mean > 0.0) {
         return Err(Error::Other(

@@ -158,7 +158,9 @@ mod tests {
             .collect();
         let band: f64 = integrate(450.0, 820.0, |nm| interp(&sun, nm));
         let eff = cam.effective_radiance(&sun).unwrap();
-        assert!((eff / band - 1.0).abs() < 1e-9, "{eff} vs {band}");
+        // The source is the Sun tabulated every 1 nm (linear between): it
+        // differs from the analytic Sun by ~h²/8·|E''/E| ~ 1e-7.
+        assert!((eff / band - 1.0).abs() < 1e-6, "{eff} vs {band}");
     }
 
     /// F for a flat meter over the band and a monochromatic-like screen

@@ -75,8 +75,10 @@ impl Rect {
     pub fn from_fractions(f: [f64; 4], width: usize, height: usize) -> Rect {
         let x = ((f[0] * width as f64).floor() as usize).min(width.saturating_sub(1));
         let y = ((f[1] * height as f64).floor() as usize).min(height.saturating_sub(1));
-        let w = ((f[2] * width as f64).round() as usize).clamp(1, width - x);
-        let h = ((f[3] * height as f64).round() as usize).clamp(1, height - y);
+        // `max(1)`: an empty frame gives a 1-pixel rect that
+        // `region_stats` then refuses, instead of a panic here.
+        let w = ((f[2] * width as f64).round() as usize).clamp(1, (width - x).max(1));
+        let h = ((f[3] * height as f64).round() as usize).clamp(1, (height - y).max(1));
         Rect { x, y, w, h }
     }
 }
@@ -92,6 +94,9 @@ pub struct RegionStats {
     pub max_raw: f64,
     /// Pixels of the whole frame at or above saturation.
     pub saturated: usize,
+    /// Pixels of the region at exactly `max_raw` (a plateau means clipping,
+    /// e.g. at a full well below the configured saturation).
+    pub at_max: usize,
     pub pixels: usize,
 }
 
@@ -131,6 +136,11 @@ pub fn region_stats(frame: &CameraFrame, dark: Option<&[f32]>, rect: Rect) -> Re
             s2 += v * v;
         }
     }
+    let mut at_max = 0;
+    for y in rect.y..rect.y + rect.h {
+        let row = &frame.data[y * frame.width + rect.x..y * frame.width + rect.x + rect.w];
+        at_max += row.iter().filter(|&&v| v as f64 == max_raw).count();
+    }
     let n = (rect.w * rect.h) as f64;
     let mean = s / n;
     let std = (s2 / n - mean * mean).max(0.0).sqrt();
@@ -142,13 +152,15 @@ pub fn region_stats(frame: &CameraFrame, dark: Option<&[f32]>, rect: Rect) -> Re
         std,
         max_raw,
         saturated,
+        at_max,
         pixels: rect.w * rect.h,
     })
 }
 
 /// A frame taken with an exposure chosen so that the region's brightest
 /// pixel sits near `fill` of saturation: starting from `start` s, halved
-/// while anything in the region saturates, lengthened (up to `max`) while
+/// while anything in the region saturates (reaches `saturation_dn`, or more
+/// than 1 % of the region sits at one bright value: clipped below it), lengthened (up to `max`) while
 /// the region is below a quarter of the aim.
 pub struct AutoExposure {
     pub fill: f64,
@@ -186,7 +198,10 @@ impl AutoExposure {
             let frame = camera.capture(&request)?;
             let stats = region_stats(&frame, dark, rect)?;
             let sat = frame.saturation_dn as f64;
-            if stats.max_raw >= sat {
+            // More than 1 % of the region at one bright value is a clipped
+            // plateau (a full well below `saturation_dn`), not a signal.
+            let plateau = stats.max_raw > 0.25 * sat && stats.at_max > (stats.pixels / 100).max(3);
+            if stats.max_raw >= sat || plateau {
                 if exposure <= self.min * 1.000_001 {
                     return Err(Error::Other(format!(
                         "pattern `{pattern}` (drive level {level}): camera saturated in the \

@@ -584,7 +584,7 @@ pub struct GeometricReport {
     /// Files written.
     pub geometry_csv: PathBuf,
     pub report_json: PathBuf,
-    /// The residual plot (None until plotted).
+    /// The residual quiver plot.
     pub quiver_png: Option<PathBuf>,
     pub dots_shown: usize,
     pub blobs_detected: usize,

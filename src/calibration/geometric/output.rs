@@ -9,6 +9,7 @@ use super::patterns::DotGrid;
 use super::{GeometricConfig, GeometricReport, Solution};
 use crate::error::{Error, Result};
 use crate::facility::geometry::GeometryCalibration;
+use crate::figures::{quiver, Arrow, Quiver};
 
 /// Nodes `0, step, 2 step, …` and always `size`.
 pub fn lattice_axis(size: usize, step: usize) -> Vec<usize> {
@@ -23,6 +24,11 @@ pub fn utc_now() -> String {
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs())
         .unwrap_or(0);
+    utc_from_unix(secs)
+}
+
+/// `secs` after 1970-01-01T00:00:00Z as `YYYY-MM-DDTHH:MM:SSZ`.
+fn utc_from_unix(secs: u64) -> String {
     let (days, rem) = ((secs / 86_400) as i64, secs % 86_400);
     // Days since 1970-01-01 → civil date (H. Hinnant's algorithm).
     let z = days + 719_468;
@@ -128,7 +134,7 @@ pub fn write_all(
         config: cfg.clone(),
         geometry_csv: csv_path,
         report_json: out_dir.join("geometric_report.json"),
-        quiver_png: None,
+        quiver_png: Some(out_dir.join("geometric_residuals.png")),
         dots_shown: solution.dots_shown,
         blobs_detected: solution.blobs_detected,
         blobs_rejected: solution.blobs_rejected,
@@ -147,6 +153,9 @@ pub fn write_all(
         dots: solution.dots.clone(),
     };
     write_json(&report.report_json, &report)?;
+    if let Some(png) = &report.quiver_png {
+        quiver_plot(&report, png)?;
+    }
     Ok(report)
 }
 
@@ -154,4 +163,84 @@ fn write_json(path: &PathBuf, report: &GeometricReport) -> Result<()> {
     let text = serde_json::to_string_pretty(report)
         .map_err(|e| Error::Other(format!("{}: {e}", path.display())))?;
     std::fs::write(path, text).map_err(|e| Error::io(path, e))
+}
+
+/// The residual of each used dot as an arrow at its screen position,
+/// magnified so the largest is about one dot spacing long; the key arrow
+/// is a round number of camera pixels. Rejected dots are not drawn (the
+/// JSON report lists them).
+fn quiver_plot(report: &GeometricReport, path: &Path) -> Result<()> {
+    let arrows: Vec<Arrow> = report
+        .dots
+        .iter()
+        .filter(|d| d.used)
+        .map(|d| Arrow {
+            x: d.u_px,
+            y: d.v_px,
+            dx: d.dx_px,
+            dy: d.dy_px,
+        })
+        .collect();
+    let largest = report.max_px.max(1e-6);
+    let key = round_125(largest);
+    let scale = report.config.spacing_px as f64 / largest;
+    let [w, h] = report.screen;
+    let height = (900.0 * h as f64 / w as f64).round().clamp(300.0, 1200.0) as u32 + 120;
+    quiver(
+        path,
+        &Quiver {
+            title: format!(
+                "Residuals: RMS {:.4}, max {:.4} camera px",
+                report.rms_px, report.max_px
+            ),
+            x_label: "screen u (px)".into(),
+            y_label: "screen v (px)".into(),
+            extent: ((0.0, w as f64), (0.0, h as f64)),
+            arrows: &arrows,
+            scale,
+            key: (key, format!("{key} camera px")),
+            size: (1000, height),
+        },
+    )
+}
+
+/// The largest of 1, 2, 5 × 10ⁿ not above `x`.
+fn round_125(x: f64) -> f64 {
+    let p = 10f64.powf(x.log10().floor());
+    [5.0, 2.0, 1.0]
+        .into_iter()
+        .map(|m| m * p)
+        .find(|&v| v <= x)
+        .unwrap_or(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lattice_spans_the_screen() {
+        assert_eq!(lattice_axis(100, 32), vec![0, 32, 64, 96, 100]);
+        assert_eq!(lattice_axis(64, 32), vec![0, 32, 64]);
+    }
+
+    #[test]
+    fn key_lengths_are_round() {
+        assert_eq!(round_125(0.0077), 0.005);
+        assert_eq!(round_125(0.25), 0.2);
+        assert_eq!(round_125(1.0), 1.0);
+        assert_eq!(round_125(9.9), 5.0);
+    }
+
+    #[test]
+    fn utc_dates_follow_the_calendar() {
+        assert_eq!(utc_from_unix(0), "1970-01-01T00:00:00Z");
+        // A leap day, and a date checked with another calendar library.
+        assert_eq!(utc_from_unix(951_782_400), "2000-02-29T00:00:00Z");
+        assert_eq!(utc_from_unix(1_795_000_000), "2026-11-18T11:06:40Z");
+        assert_eq!(
+            utc_from_unix(1_795_000_000 + 86_399 - 40_000),
+            "2026-11-18T23:59:59Z"
+        );
+    }
 }
