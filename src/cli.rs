@@ -319,8 +319,8 @@ pub struct RunArgs {
     /// file's `sync.port`, else `sim`).
     #[arg(long)]
     pub serial: Option<String>,
-    /// Stop after N frames.
-    #[arg(long)]
+    /// Stop after N frames (N ≥ 1).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub frames: Option<u64>,
     /// Frame log (JSON lines, appended).
     #[arg(long, default_value = "out/frames.jsonl")]
@@ -381,6 +381,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }
     }
+    // Refused now, not after a campaign's last frame.
+    optistim::outfile::check_appendable(&args.log)?;
+    optistim::outfile::check_replaceable(&args.summary)?;
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = stop.clone();

@@ -960,3 +960,37 @@ fn cli_bad_facility_file_is_a_one_line_error_naming_it() {
         assert!(!tmp.path().join("f.jsonl").exists());
     }
 }
+
+/// `--frames 0` is refused by the command line, and a summary path that
+/// is a symlink is refused rather than replaced (the run stops before the
+/// first frame would overwrite anything it points to).
+#[test]
+fn cli_refuses_zero_frames_and_a_symlinked_summary() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = optistim()
+        .args(["run", "configs/facility.toml", "--frames", "0"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--frames"));
+
+    let target = tmp.path().join("precious.json");
+    std::fs::write(&target, "keep me").unwrap();
+    let link = tmp.path().join("s.json");
+    std::os::unix::fs::symlink(&target, &link).unwrap();
+    let out = optistim()
+        .args(["run", "configs/facility.toml", "--frames", "2", "--log"])
+        .arg(tmp.path().join("f.jsonl"))
+        .arg("--summary")
+        .arg(&link)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(stderr.contains("symbolic link"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "keep me");
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+}
