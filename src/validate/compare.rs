@@ -440,6 +440,7 @@ pub fn build_scene(
             radius: MOON_RADIUS_M,
             reflectance,
             albedo_map,
+            albedo_spectrum: None,
             relief: Relief::default(),
         },
         state,
