@@ -211,7 +211,7 @@ pub struct Hapke {
     pub(super) spectral: Option<SpectralAlbedo>,
     /// b(λ), c(λ), h_S(λ), B_S0(λ) when given as tables (the lunar phase
     /// curve reddens: its shape changes with λ, not only its level).
-    pub(super) phase_tables: [Option<SpectralAlbedo>; 4],
+    pub(super) phase_tables: Box<[Option<SpectralAlbedo>; 4]>,
     /// b.
     pub(super) b: f64,
     /// c (Hapke's convention: c > 0 favours backscatter).
@@ -323,7 +323,7 @@ impl Hapke {
         let (b_s0_const, b_s0_table) = spectral_value(b_s0, &field("b_s0"), "[0, inf)", |v| {
             v.is_finite() && v >= 0.0
         })?;
-        let phase_tables = [b_table, c_table, h_s_table, b_s0_table];
+        let phase_tables = Box::new([b_table, c_table, h_s_table, b_s0_table]);
         if !(theta_bar.is_finite() && *theta_bar >= 0.0 && *theta_bar < PI / 2.0) {
             return Err(Error::invalid(
                 field("theta_bar"),
