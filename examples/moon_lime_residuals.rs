@@ -146,7 +146,7 @@ fn plot(path: &Path, residuals: &[Vec<[f64; 2]>]) -> anyhow::Result<()> {
     chart
         .configure_mesh()
         .x_desc("signed phase angle (deg; + waxing, − waning)")
-        .y_desc("render / LIME − 1 (%)")
+        .y_desc("render / LIME − 1 (%), clipped at ±40 %")
         .label_style(("sans-serif", 16))
         .draw()?;
     // The tolerance band and the fitted range.
