@@ -63,3 +63,113 @@ fn camera_inside_the_body_is_rejected() {
         "{e}"
     );
 }
+
+/// The keys of the spectral Moon: tables in λ, the map's encoding, the
+/// albedo spectrum, response normalisation and body files.
+#[test]
+fn spectral_body_keys_name_their_errors() {
+    let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 100.0).toml();
+    let hapke = |b: &str| {
+        good.replace(
+            "{ model = \"lambert\", albedo = 0.3 }",
+            &format!("{{ model = \"hapke\", w = 0.3, b = {b}, c = 0.2, theta_bar = 0.3, h_s = 0.1, b_s0 = 1.0 }}"),
+        )
+    };
+    assert!(Scene::from_toml(&hapke("[[400.0, 0.2], [900.0, 0.3]]"), Path::new("ok.toml")).is_ok());
+    let map = "albedo_map = { path = \"../data/maps/lroc_color_poles_2k.tif\", min = 0.1, max = 0.2, encoding = \"gamma\" }\n";
+    let cases: Vec<(&str, String, &str)> = vec![
+        ("b table out of range", hapke("[[400.0, 0.2], [900.0, 1.5]]"), "body.reflectance.b"),
+        ("b table not increasing", hapke("[[900.0, 0.2], [400.0, 0.3]]"), "body.reflectance.b"),
+        ("b table empty", hapke("[]"), "body.reflectance.b"),
+        ("unknown encoding", good.replace("reflectance = { model", &format!("{map}reflectance = {{ model")), "gamma"),
+        ("albedo spectrum negative", good.replace("reflectance = { model", "albedo_spectrum = [[400.0, -1.0], [500.0, 1.0]]\nreflectance = { model"), "body.albedo_spectrum"),
+        ("albedo spectrum one row", good.replace("reflectance = { model", "albedo_spectrum = [[400.0, 1.0]]\nreflectance = { model"), "body.albedo_spectrum"),
+        ("energy transmission", good.replace("band = [450e-9, 820e-9]", "band = [450e-9, 820e-9]\ntransmission = { path = \"../data/amie/qe_assumed.csv\", normalisation = \"energy\" }"), "camera.transmission"),
+        ("unknown normalisation", good.replace("band = [450e-9, 820e-9]", "band = [450e-9, 820e-9]\nquantum_efficiency = { path = \"../data/amie/qe_assumed.csv\", normalisation = \"lumens\" }"), "quantum_efficiency"),
+        ("missing body file", {
+            let start = good.find("[body]").unwrap();
+            let end = good.find("[state]").unwrap();
+            format!("{}[body]\nfile = \"bodies/none.toml\"\n\n{}", &good[..start], &good[end..])
+        }, "none.toml"),
+        ("body file with inline keys", {
+            let start = good.find("[body]").unwrap();
+            format!("{}[body]\nfile = \"bodies/moon.toml\"\nradius = 1.0\n{}", &good[..start], &good[good.find("[state]").unwrap()..])
+        }, "radius"),
+    ];
+    for (what, text, needle) in cases {
+        let e = error_of(&text);
+        assert!(
+            e.contains(needle),
+            "{what}: error does not name `{needle}`: {e}"
+        );
+    }
+}
+
+/// Errors inside a body file name the body file.
+#[test]
+fn body_file_errors_name_the_body_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let body = dir.path().join("rock.toml");
+    std::fs::write(
+        &body,
+        "[body]\nradius = -5.0\nreflectance = { model = \"lambert\", albedo = 0.3 }\n",
+    )
+    .unwrap();
+    let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 100.0).toml();
+    let start = good.find("[body]").unwrap();
+    let end = good.find("[state]").unwrap();
+    let text = format!(
+        "{}[body]\nfile = \"rock.toml\"\n\n{}",
+        &good[..start],
+        &good[end..]
+    );
+    let e = Scene::from_toml(&text, &dir.path().join("scene.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("rock.toml") && e.contains("body.radius"), "{e}");
+    std::fs::write(
+        &body,
+        "[body]\nradius = 5.0\nreflectance = { model = \"lambert\", albedo = 0.3 }\n",
+    )
+    .unwrap();
+    let scene = Scene::from_toml(&text, &dir.path().join("scene.toml")).unwrap();
+    assert_eq!(scene.body.radius, 5.0);
+}
+
+mod spectral_tables {
+    use super::*;
+    use optistim::radiometry::geometry::ScatteringGeometry;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Any numbers in the λ tables and the albedo spectrum: Ok or a
+        /// named error, never a panic; when Ok, the model at any wavelength
+        /// gives a finite, non-negative radiance factor.
+        #[test]
+        fn any_table_is_ok_or_a_named_error(
+            b in -2.0f64..2.0, c in -2.0f64..2.0, h in -1.0f64..2.0, s0 in -1.0f64..5.0,
+            l0 in -100.0f64..2000.0, l1 in -100.0f64..2000.0, s in -1.0f64..3.0,
+            at in 1e-7f64..3e-6,
+        ) {
+            let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 100.0).toml();
+            let model = format!(
+                "{{ model = \"hapke\", w = [[{l0}, 0.3], [{l1}, 0.4]], b = [[{l0}, {b}], [{l1}, 0.1]], c = [[500.0, {c}]], theta_bar = 0.3, h_s = [[500.0, {h}]], b_s0 = [[500.0, {s0}]] }}\nalbedo_spectrum = [[{l0}, {s}], [{l1}, 1.0]]"
+            );
+            let text = good.replace("{ model = \"lambert\", albedo = 0.3 }", &model);
+            match Scene::from_toml(&text, Path::new("configs/prop.toml")) {
+                Ok(scene) => {
+                    let m = scene.body.reflectance.at_wavelength(at);
+                    let g = ScatteringGeometry::from_angles(0.4, 0.3, 0.5);
+                    let r = m.radiance_factor(&g, m.albedo() * scene.body.albedo_factor(at));
+                    prop_assert!(r.is_finite() && r >= 0.0);
+                }
+                Err(e) => {
+                    let e = e.to_string();
+                    prop_assert!(e.contains("prop.toml"), "{}", e);
+                    prop_assert!(e.contains("body."), "{}", e);
+                }
+            }
+        }
+    }
+}

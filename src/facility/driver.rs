@@ -39,8 +39,10 @@ use super::serial::{CommandTemplate, FrameCommand, SendOutcome, SyncPort};
 use super::trajectory::{State as TrajectoryState, Trajectory};
 use super::udp::UdpStateReceiver;
 use crate::error::{Error, Result};
+use crate::radiometry::reflectance::Reflectance;
 use crate::radiometry::spectrum::band_integrals;
-use crate::render::Renderer;
+use crate::render::detector::band_model;
+use crate::render::{BandModel, Renderer};
 use crate::scene::{Pinhole, Scene, State};
 
 /// Where states come from.
@@ -96,7 +98,11 @@ pub struct ScreenModel {
     block: usize,
     solid_angle: Vec<f32>,
     band_irradiance_1au: f64,
+    /// The body's model at the band's response-weighted wavelength (one
+    /// render per frame; a spectral body is not split into sub-bands here).
+    model: Reflectance,
     albedo: Option<f64>,
+    map_scale: f64,
     screen: (usize, usize),
     rotation: f64,
     warp: Option<PreWarp>,
@@ -104,6 +110,29 @@ pub struct ScreenModel {
     /// ideal grid of the pre-warp, or a grid of blocks.
     ideal_target: Vec<f32>,
     roi_target: Vec<f32>,
+}
+
+/// The camera's electron-weighted mean wavelength over its band [m]: where
+/// a single render stands for a spectral body.
+fn response_weighted_wavelength(scene: &Scene) -> f64 {
+    let cam = &scene.camera;
+    let parts = band_integrals(
+        &scene.sun,
+        &cam.quantum_efficiency,
+        &cam.transmission,
+        cam.band,
+        32,
+    );
+    let total: f64 = parts.iter().map(|b| b.electron_rate_1au).sum();
+    if total > 0.0 {
+        parts
+            .iter()
+            .map(|b| b.centroid * b.electron_rate_1au)
+            .sum::<f64>()
+            / total
+    } else {
+        0.5 * (cam.band[0] + cam.band[1])
+    }
 }
 
 /// The screen as a pinhole camera behind the collimator.
@@ -254,14 +283,18 @@ impl ScreenModel {
             map.box_average(0.0, 0.0, 1.0, 1.0);
             map.sample_stretched(0.0, 0.0, 4.0);
         }
-        let albedo = (!scene.body.reflectance.is_spectrally_flat())
-            .then(|| scene.body.reflectance.albedo_at(bands[0].centroid));
+        let wavelength = response_weighted_wavelength(scene);
+        let model = scene.body.reflectance.at_wavelength(wavelength);
+        let band = band_model(&scene.body, &model, wavelength);
+        let (albedo, map_scale) = (band.albedo, band.map_scale);
         ScreenModel {
             renderer,
             block,
             solid_angle,
             band_irradiance_1au: bands[0].irradiance_1au,
+            model,
             albedo,
+            map_scale,
             screen: config.screen_size(),
             rotation: if warp.is_some() {
                 0.0
@@ -287,9 +320,14 @@ impl ScreenModel {
         let mut st = *state;
         // The screen's x axis is turned by `rotation` in the camera frame.
         st.camera_attitude = state.camera_attitude * DQuat::from_rotation_z(self.rotation);
+        let band = BandModel {
+            model: Some(&self.model),
+            albedo: self.albedo,
+            map_scale: self.map_scale,
+        };
         let stats = self
             .renderer
-            .render_flux(&scene.body, &st, &scene.render, self.albedo);
+            .render_flux_band(&scene.body, &st, &scene.render, &band);
         let r = stats.roi;
         let w = self.renderer.camera().width;
         let flux = self.renderer.flux();

@@ -117,30 +117,58 @@ impl Table {
     }
 }
 
+/// Elementary charge [C].
+pub const ELEMENTARY_CHARGE: f64 = 1.602_176_634e-19;
+
 /// A dimensionless spectral factor: quantum efficiency or transmission.
 #[derive(Clone, Debug)]
 pub enum Response {
     /// Same value at every wavelength.
     Constant(f64),
-    /// Tabulated against wavelength.
+    /// Tabulated against wavelength (photon-normalised: electrons per
+    /// photon for a QE, a fraction for a transmission).
     Table(Table),
+    /// An energy-normalised responsivity table in A/W (electrons per joule
+    /// times e): the quantum efficiency it stands for is v hc/(λ e), so
+    /// the electron rate ∫ QE λ/(hc) F dλ = ∫ v/e F dλ stays the integral
+    /// of the table's own piecewise-linear values (exact between nodes).
+    AmpsPerWatt(Table),
 }
 
 impl Response {
-    /// Value at a wavelength [m].
+    /// Value (quantum efficiency or transmission) at a wavelength [m].
     pub fn eval(&self, wavelength: f64) -> f64 {
         match self {
             Response::Constant(v) => *v,
             Response::Table(t) => t.eval(wavelength),
+            Response::AmpsPerWatt(t) => {
+                t.eval(wavelength) * PLANCK * LIGHT_SPEED / (wavelength * ELEMENTARY_CHARGE)
+            }
         }
     }
 
     fn knots(&self) -> &[f64] {
         match self {
             Response::Constant(_) => &[],
-            Response::Table(t) => &t.wavelengths,
+            Response::Table(t) | Response::AmpsPerWatt(t) => &t.wavelengths,
         }
     }
+}
+
+/// ∫_band QE T λ/(hc) dλ [e⁻ J⁻¹ m]: the camera's photon responsivity R(λ)
+/// integrated over its band, exact for piecewise-linear tables (their
+/// nodes are quadrature breakpoints).
+pub fn response_integral(qe: &Response, transmission: &Response, band: [f64; 2]) -> f64 {
+    let mut knots: Vec<f64> = qe
+        .knots()
+        .iter()
+        .chain(transmission.knots())
+        .copied()
+        .collect();
+    knots.sort_by(f64::total_cmp);
+    integrate(band[0], band[1], &knots, |l| {
+        qe.eval(l) * transmission.eval(l) * l / (PLANCK * LIGHT_SPEED)
+    })
 }
 
 /// Solar spectral irradiance at 1 au [W m⁻² m⁻¹].

@@ -142,8 +142,14 @@ pub struct Frame<'a> {
     /// Lester axes in body-fixed coordinates (for maps).
     pub axes_body: [DVec3; 3],
     pub body: &'a Body,
+    /// Reflection model of this (sub-)band: the body's, or the body's
+    /// spectral model evaluated at the sub-band's wavelength.
+    pub model: &'a Reflectance,
     /// Albedo parameter used where there is no map.
     pub albedo: f64,
+    /// Factor on the map's values (1, or w(λ) of a spectral model whose
+    /// map is a relative pattern).
+    pub map_scale: f64,
     pub weight: Weight,
     pub radius: f64,
     /// Caps per pixel along each image axis.
@@ -379,7 +385,7 @@ impl Frame<'_> {
         let d_cam = self.lune.camera_range;
         let d_sun = self.lune.sun_range;
         let r = self.radius;
-        let model = &self.body.reflectance;
+        let model = self.model;
         let needs_body_dir = self.body.albedo_map.is_some()
             || self.body.relief.height.is_some()
             || self.body.relief.normals.is_some();
@@ -453,7 +459,7 @@ impl Frame<'_> {
                         // Albedo sampled k×k times over the cap's footprint.
                         let e1 = (xb * (ct * cp) + yb * (ct * sp) - zb * st) * d_theta;
                         let e2 = (yb * cp - xb * sp) * (st * d_phi);
-                        texture.sample(map, n_body, e1, e2, self.texture_samples)
+                        texture.sample(map, n_body, e1, e2, self.texture_samples) * self.map_scale
                     }
                 };
                 let integrand = self.integrand(

@@ -11,16 +11,21 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::{line_of_sight, RenderStats, Renderer};
+use super::{line_of_sight, BandModel, RenderStats, Renderer};
 use crate::error::{Error, Result};
-use crate::radiometry::spectrum::{band_integrals, BandIntegral};
-use crate::scene::Scene;
+use crate::radiometry::reflectance::Reflectance;
+use crate::radiometry::spectrum::{band_integrals, response_integral, BandIntegral};
+use crate::scene::{Body, Scene};
 
 /// Images and figures of one rendered scene.
 #[derive(Clone, Debug)]
 pub struct SceneImages {
     /// Band-integrated radiance [W m⁻² sr⁻¹], row-major.
     pub radiance: Vec<f32>,
+    /// Camera-effective radiance [W m⁻² sr⁻¹] (docs/SCENE.md): the band
+    /// radiance of a solar-spectrum source giving the camera the same
+    /// electron rate; equal to `radiance` for a spectrally flat body.
+    pub radiance_effective: Vec<f32>,
     /// Electrons collected over the exposure, clipped at the full well.
     pub electrons: Vec<f32>,
     /// Quantised DN.
@@ -40,6 +45,13 @@ pub struct Summary {
     /// Same, summed over all caps including those outside the image
     /// [W m⁻²].
     pub irradiance_all_caps_w_m2: f64,
+    /// Σ L_eff Ω cos θ over the image with the camera-effective radiance:
+    /// the in-band irradiance of a solar-spectrum source giving the camera
+    /// the same electron rate [W m⁻²].
+    pub effective_irradiance_at_pupil_w_m2: f64,
+    /// ∫ E(λ) R(λ) dλ / ∫ R(λ) dλ over the band, R = QE T λ/(hc): the
+    /// response-weighted mean spectral irradiance at the pupil [W m⁻² nm⁻¹].
+    pub response_weighted_irradiance_w_m2_nm: f64,
     /// Total electrons in the image.
     pub total_electrons: f64,
     /// Largest DN.
@@ -79,7 +91,7 @@ impl PixelGeometry {
 /// paper's saving), else in sub-bands of about 10 nm unless configured.
 pub fn plan_bands(scene: &Scene) -> Vec<BandIntegral> {
     let cam = &scene.camera;
-    let n = if scene.body.reflectance.is_spectrally_flat() {
+    let n = if scene.body.is_spectrally_flat() {
         1
     } else {
         scene
@@ -94,6 +106,24 @@ pub fn plan_bands(scene: &Scene) -> Vec<BandIntegral> {
         cam.band,
         n,
     )
+}
+
+/// What the sub-band at `wavelength` changes: `model` is the body's model
+/// evaluated there. The albedo is w(λ) (spectral Hapke) or the model's,
+/// times the albedo spectrum s(λ); a map is multiplied by s(λ), and by w(λ)
+/// when w is a table (the map is then a relative pattern).
+pub fn band_model<'a>(body: &Body, model: &'a Reflectance, wavelength: f64) -> BandModel<'a> {
+    if body.is_spectrally_flat() {
+        return BandModel::default();
+    }
+    let s = body.albedo_factor(wavelength);
+    let w = body.reflectance.albedo_at(wavelength);
+    let relative_map = body.reflectance.has_spectral_albedo();
+    BandModel {
+        model: Some(model),
+        albedo: Some(w * s),
+        map_scale: if relative_map { w * s } else { s },
+    }
 }
 
 /// Render a scene through the whole chain.
@@ -112,19 +142,14 @@ pub fn render_scene(
     }
     let n = pin.width * pin.height;
     let bands = plan_bands(scene);
-    if bands.len() > 1 && scene.body.albedo_map.is_some() {
-        return Err(Error::invalid(
-            "body.albedo_map",
-            "cannot be combined with a spectral reflectance",
-        ));
-    }
     let mut radiance = vec![0.0f32; n];
     let mut electron_rate = vec![0.0f32; n];
     let mut stats = RenderStats::default();
     let mut all_caps = 0.0;
     for band in &bands {
-        let albedo = (bands.len() > 1).then(|| scene.body.reflectance.albedo_at(band.centroid));
-        stats = renderer.render_flux(&scene.body, &scene.state, &scene.render, albedo);
+        let model = scene.body.reflectance.at_wavelength(band.centroid);
+        let band_model = band_model(&scene.body, &model, band.centroid);
+        stats = renderer.render_flux_band(&scene.body, &scene.state, &scene.render, &band_model);
         all_caps += stats.total_flux * band.irradiance_1au;
         let flux = renderer.flux();
         let roi = stats.roi;
@@ -149,6 +174,17 @@ pub fn render_scene(
     let mut saturated = 0u64;
     let mut peak_dn = 0u32;
     let mut irradiance = 0.0;
+    let band_irradiance: f64 = bands.iter().map(|b| b.irradiance_1au).sum();
+    let band_electrons: f64 = bands.iter().map(|b| b.electron_rate_1au).sum();
+    // L_eff = (∫ L R dλ) ∫E☉ / ∫E☉R; ∫ L R dλ = electron rate / Ω.
+    let to_effective = if band_electrons > 0.0 {
+        band_irradiance / band_electrons
+    } else {
+        0.0
+    };
+    let mut radiance_effective = vec![0.0f32; n];
+    let mut effective_irradiance = 0.0;
+    let mut weighted = 0.0;
     for j in 0..pin.height {
         for i in 0..pin.width {
             let k = j * pin.width + i;
@@ -156,7 +192,12 @@ pub fn render_scene(
                 continue;
             }
             let dir = pin.pixel_direction(i, j);
-            irradiance += radiance[k] as f64 * pixels.solid_angle[k] as f64 * dir.dot(los);
+            let cos_los = dir.dot(los);
+            irradiance += radiance[k] as f64 * pixels.solid_angle[k] as f64 * cos_los;
+            let effective = electron_rate[k] as f64 * to_effective / pixels.solid_angle[k] as f64;
+            radiance_effective[k] = effective as f32;
+            effective_irradiance += effective * pixels.solid_angle[k] as f64 * cos_los;
+            weighted += electron_rate[k] as f64 * cos_los;
             let mut e = cam.exposure * pupil * dir.z * electron_rate[k] as f64;
             if e >= cam.full_well {
                 e = cam.full_well;
@@ -173,14 +214,23 @@ pub fn render_scene(
     }
     let range = (scene.state.camera_position - scene.state.body_position).length();
     let apparent = (scene.body.radius / range).asin();
+    let response = response_integral(&cam.quantum_efficiency, &cam.transmission, cam.band);
+    let response_weighted = if response > 0.0 {
+        weighted / response * 1e-9
+    } else {
+        0.0
+    };
     Ok(SceneImages {
         radiance,
+        radiance_effective,
         electrons,
         dn,
         summary: Summary {
             phase_angle_deg: stats.phase_angle.to_degrees(),
             irradiance_at_pupil_w_m2: irradiance,
             irradiance_all_caps_w_m2: all_caps,
+            effective_irradiance_at_pupil_w_m2: effective_irradiance,
+            response_weighted_irradiance_w_m2_nm: response_weighted,
             total_electrons,
             max_dn: peak_dn,
             saturated_pixels: saturated,

@@ -424,6 +424,7 @@ impl Lattice {
                     a2: (q[6], q[7]),
                 }
                 .mean(map, frame.texture_samples)
+                    * frame.map_scale
             }
         };
         ((q[0] + q[1] * rho) * rho).max(0.0)
@@ -639,7 +640,7 @@ impl PixelRays {
             frame.lune.camera_range,
             frame.lune.sun_range,
             self.radius,
-            &frame.body.reflectance,
+            frame.model,
         );
         // integrand · dS with dS = |P|² / μ · dΩ and dΩ = du dv / (fx fy |d|³).
         let dist = s.p.length();
@@ -654,7 +655,7 @@ impl PixelRays {
     /// model quadratic in the albedo.
     fn lattice_applies(&self, frame: &Frame) -> bool {
         frame.occulter.is_none()
-            && (frame.body.albedo_map.is_none() || frame.body.reflectance.is_albedo_quadratic())
+            && (frame.body.albedo_map.is_none() || frame.model.is_albedo_quadratic())
     }
 
     /// μ, the cosine of the emission angle at `s`.
@@ -727,7 +728,7 @@ impl PixelRays {
         };
         let albedo = match &frame.body.albedo_map {
             None => frame.albedo,
-            Some(map) => self.footprint(map, &s).mean(map, frame.texture_samples),
+            Some(map) => self.footprint(map, &s).mean(map, frame.texture_samples) * frame.map_scale,
         };
         let midpoint = self.flux_at(frame, &s, albedo);
         if self.midpoint_suffices(&s) {

@@ -26,6 +26,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::radiometry::reflectance::Reflectance;
 use crate::scene::{Body, Pinhole, State};
 use caps::{Cell, Frame, Leaf, Rect, Sink, Weight};
 use interior::{InteriorMask, PixelRays};
@@ -236,7 +237,7 @@ impl Renderer {
 
     /// Render the body's collected flux per unit solar irradiance at 1 au.
     /// `albedo` overrides the model's albedo parameter where there is no
-    /// map (used for per-sub-band spectral albedo).
+    /// map.
     pub fn render_flux(
         &mut self,
         body: &Body,
@@ -244,6 +245,23 @@ impl Renderer {
         settings: &RenderSettings,
         albedo: Option<f64>,
     ) -> RenderStats {
+        let band = BandModel {
+            albedo,
+            ..BandModel::default()
+        };
+        self.render_flux_band(body, state, settings, &band)
+    }
+
+    /// [`render_flux`](Self::render_flux) for one sub-band of a spectral
+    /// scene: the model, albedo and map scale of that band.
+    pub fn render_flux_band(
+        &mut self,
+        body: &Body,
+        state: &State,
+        settings: &RenderSettings,
+        band: &BandModel,
+    ) -> RenderStats {
+        let model = band.model.unwrap_or(&body.reflectance);
         // Clear what the previous frame wrote.
         let w = self.camera.width;
         let dirty = self.dirty;
@@ -272,8 +290,10 @@ impl Renderer {
             camera_cam: to_camera * camera_rel,
             axes_body: [to_body * lune.x, to_body * lune.y, to_body * lune.z],
             body,
-            albedo: albedo.unwrap_or_else(|| body.reflectance.albedo()),
-            weight: Weight::for_model(&body.reflectance),
+            model,
+            albedo: band.albedo.unwrap_or_else(|| model.albedo()),
+            map_scale: band.map_scale,
+            weight: Weight::for_model(model),
             radius: body.radius,
             density: settings.density(),
             min_caps: settings.min_caps as f64,
@@ -414,6 +434,29 @@ impl Renderer {
         stats.stages.interior = t_interior.elapsed().as_secs_f64();
         self.dirty = roi;
         stats
+    }
+}
+
+/// What one (sub-)band of a render changes: the reflection model (the
+/// body's spectral model at the band's wavelength), the albedo where there
+/// is no map, and the factor on the map's values.
+#[derive(Clone, Copy, Debug)]
+pub struct BandModel<'a> {
+    /// Model of this band; None: the body's.
+    pub model: Option<&'a Reflectance>,
+    /// Albedo where there is no map; None: the model's.
+    pub albedo: Option<f64>,
+    /// Factor on the albedo map's values.
+    pub map_scale: f64,
+}
+
+impl Default for BandModel<'_> {
+    fn default() -> Self {
+        Self {
+            model: None,
+            albedo: None,
+            map_scale: 1.0,
+        }
     }
 }
 

@@ -1,4 +1,5 @@
-//! Files written by `optistim render`: f32 TIFFs of radiance and electrons,
+//! Files written by `optistim render`: f32 TIFFs of radiance, camera-effective
+//! radiance and electrons,
 //! a 16-bit PNG of DN, and `summary.json`.
 
 use std::fs::File;
@@ -34,6 +35,12 @@ pub fn write_u16_png(path: &Path, width: usize, height: usize, data: &[u16]) -> 
 pub fn write_render(dir: &Path, width: usize, height: usize, images: &SceneImages) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     write_f32_tiff(&dir.join("radiance.tiff"), width, height, &images.radiance)?;
+    write_f32_tiff(
+        &dir.join("radiance_effective.tiff"),
+        width,
+        height,
+        &images.radiance_effective,
+    )?;
     write_f32_tiff(
         &dir.join("electrons.tiff"),
         width,

@@ -102,6 +102,15 @@ impl SatPos {
     }
 }
 
+/// The sRGB decoding curve: encoded value in [0, 1] to linear light.
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 /// Latitude and longitude [rad] of a body-fixed direction (need not be unit).
 #[inline]
 pub fn lat_lon(n: DVec3) -> (f64, f64) {
@@ -138,6 +147,20 @@ impl EquirectMap {
         let data = rgb
             .pixels()
             .map(|p| (p.0[0] + p.0[1] + p.0[2]) / 3.0)
+            .collect();
+        Self::checked(path, width, height, data)
+    }
+
+    /// Read an 8/16-bit sRGB-encoded image (a visual mosaic) and undo the
+    /// sRGB transfer curve per channel before averaging, so that values are
+    /// proportional to reflected light (IEC 61966-2-1).
+    pub fn load_srgb(path: &Path) -> Result<Self> {
+        let img = image::open(path).map_err(|e| Error::parse(path, e.to_string()))?;
+        let (width, height) = (img.width() as usize, img.height() as usize);
+        let rgb = img.to_rgb32f();
+        let data = rgb
+            .pixels()
+            .map(|p| p.0.iter().map(|&c| srgb_to_linear(c)).sum::<f32>() / 3.0)
             .collect();
         Self::checked(path, width, height, data)
     }

@@ -70,6 +70,26 @@ pub struct Relief {
     pub normals: Option<NormalMap>,
 }
 
+impl Body {
+    /// Whether the body's reflectance is the same at every wavelength (the
+    /// paper's single-PF path): no λ table in the model, no albedo spectrum.
+    pub fn is_spectrally_flat(&self) -> bool {
+        self.reflectance.is_spectrally_flat() && self.albedo_spectrum.is_none()
+    }
+
+    /// The albedo factor s(λ) (1 without an albedo spectrum; the table's
+    /// end values beyond its ends).
+    pub fn albedo_factor(&self, wavelength_m: f64) -> f64 {
+        match &self.albedo_spectrum {
+            None => 1.0,
+            Some(t) => {
+                let w = &t.wavelengths;
+                t.eval(wavelength_m.clamp(w[0], w[w.len() - 1]))
+            }
+        }
+    }
+}
+
 /// A spherical body.
 #[derive(Clone, Debug)]
 pub struct Body {
@@ -79,6 +99,9 @@ pub struct Body {
     pub reflectance: Reflectance,
     /// Per-point value of the model's albedo parameter.
     pub albedo_map: Option<EquirectMap>,
+    /// A spectral factor s(λ) on the albedo parameter (and on the map):
+    /// albedo(x, λ) = map(x) · s(λ). None: no factor.
+    pub albedo_spectrum: Option<Table>,
     /// Displacement and normal maps.
     pub relief: Relief,
 }
@@ -235,6 +258,25 @@ pub struct CameraFile {
 enum ResponseFile {
     Constant(f64),
     Table(PathBuf),
+    Normalised(NormalisedTable),
+}
+
+/// `{ path = "...", normalisation = "photon" | "energy" }`.
+#[derive(Deserialize, Clone, Debug)]
+#[serde(deny_unknown_fields)]
+struct NormalisedTable {
+    path: PathBuf,
+    normalisation: Normalisation,
+}
+
+/// What a response table's values count.
+#[derive(Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+enum Normalisation {
+    /// Electrons per photon (a quantum efficiency) or a transmitted fraction.
+    Photon,
+    /// A responsivity in A/W (electrons per joule × e).
+    Energy,
 }
 
 fn unit_response() -> ResponseFile {
@@ -255,6 +297,7 @@ struct BodyFile {
     radius: f64,
     reflectance: ReflectanceConfig,
     albedo_map: Option<AlbedoMapFile>,
+    albedo_spectrum: Option<Vec<[f64; 2]>>,
     displacement_map: Option<DisplacementMapFile>,
     normal_map: Option<NormalMapFile>,
 }
@@ -265,6 +308,51 @@ struct AlbedoMapFile {
     path: PathBuf,
     min: f64,
     max: f64,
+    #[serde(default)]
+    encoding: MapEncoding,
+}
+
+/// How an albedo map's 8/16-bit values encode light.
+#[derive(Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+enum MapEncoding {
+    /// Values proportional to reflectance.
+    #[default]
+    Linear,
+    /// A visual (sRGB-encoded) mosaic: decoded to linear light first.
+    Srgb,
+}
+
+/// A scene whose `[body]` is a separate body file: `[body] file = "..."`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFileBodyRef {
+    camera: CameraFile,
+    sun: SunFile,
+    body: BodyRef,
+    state: StateFile,
+    #[serde(default)]
+    render: RenderSettings,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BodyRef {
+    file: PathBuf,
+}
+
+/// A body file: its `[body]` table (relative paths in it resolve against
+/// the body file's directory).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BodyFileOnly {
+    body: BodyFile,
+}
+
+/// Whether the `[body]` table of a scene names a body file.
+#[derive(Deserialize)]
+struct BodyProbe {
+    body: Option<toml::Table>,
 }
 
 #[derive(Deserialize)]
@@ -327,16 +415,44 @@ impl Scene {
     /// Parse a scene from TOML text; `path` names the source in errors and
     /// anchors relative paths.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self> {
-        let file: SceneFile =
-            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
-        let base = path.parent().unwrap_or(Path::new("."));
-        Self::build(file, base).map_err(|e| match e {
+        let to_parse = |e: Error| match e {
             Error::Invalid { .. } | Error::Other(_) => Error::parse(path, e.to_string()),
             other => other,
+        };
+        let base = path.parent().unwrap_or(Path::new("."));
+        let probe: BodyProbe =
+            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+        let names_file = probe.body.is_some_and(|b| b.contains_key("file"));
+        if !names_file {
+            let file: SceneFile =
+                toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+            return Self::build(file, base, base).map_err(to_parse);
+        }
+        let file: SceneFileBodyRef =
+            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+        let body_path = resolve(base, &file.body.file);
+        let body_text =
+            std::fs::read_to_string(&body_path).map_err(|e| Error::io(&body_path, e))?;
+        let body: BodyFileOnly =
+            toml::from_str(&body_text).map_err(|e| Error::parse(&body_path, e.to_string()))?;
+        let body_base = body_path.parent().unwrap_or(Path::new("."));
+        let scene = SceneFile {
+            camera: file.camera,
+            sun: file.sun,
+            body: body.body,
+            state: file.state,
+            render: file.render,
+        };
+        Self::build(scene, base, body_base).map_err(|e| match e {
+            Error::Invalid { ref field, .. } if field.starts_with("body") => {
+                Error::parse(&body_path, e.to_string())
+            }
+            other => to_parse(other),
         })
     }
 
-    fn build(file: SceneFile, base: &Path) -> Result<Self> {
+    /// `base` anchors the scene's relative paths, `body_base` the body's.
+    fn build(file: SceneFile, base: &Path, body_base: &Path) -> Result<Self> {
         let camera = camera_from(&file.camera, base)?;
         let sun = match file.sun.spectrum.as_str() {
             "blackbody" => SolarSpectrum::blackbody(
@@ -350,41 +466,8 @@ impl Scene {
                     .map_err(|e| Error::invalid("sun.spectrum", e.to_string()))?
             }
         };
-        let radius = positive(file.body.radius, "body.radius")?;
-        let reflectance = file.body.reflectance.build()?;
-        let albedo_map = match &file.body.albedo_map {
-            Some(m) => {
-                let lo = m.min;
-                let hi = m.max;
-                if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi >= lo) {
-                    return Err(Error::invalid(
-                        "body.albedo_map",
-                        "need finite 0 <= min <= max",
-                    ));
-                }
-                let mut map = load_map(base, &m.path, "body.albedo_map.path")?;
-                map.stretch(lo, hi);
-                Some(map)
-            }
-            None => None,
-        };
-        let mut relief = Relief::default();
-        if let Some(d) = &file.body.displacement_map {
-            if !d.scale.is_finite() {
-                return Err(Error::invalid("body.displacement_map.scale", "not finite"));
-            }
-            let mut height = load_map(base, &d.path, "body.displacement_map.path")?;
-            height.scale(d.scale);
-            let (d_lat, d_lon) = height.gradients();
-            relief.height = Some((height, d_lat, d_lon));
-        }
-        if let Some(n) = &file.body.normal_map {
-            let p = resolve(base, &n.path);
-            relief.normals = Some(
-                NormalMap::load(&p)
-                    .map_err(|e| Error::invalid("body.normal_map.path", e.to_string()))?,
-            );
-        }
+        let body = body_from(&file.body, body_base)?;
+        let radius = body.radius;
         let s = &file.state;
         let state = State {
             body_position: vector(s.body_position, "state.body_position")?,
@@ -399,15 +482,83 @@ impl Scene {
         Ok(Scene {
             camera,
             sun,
-            body: Body {
-                radius,
-                reflectance,
-                albedo_map,
-                relief,
-            },
+            body,
             state,
             render: file.render,
         })
+    }
+}
+
+/// Build a body from its `[body]` table; `body_base` anchors its paths.
+fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
+    let radius = positive(body.radius, "body.radius")?;
+    let reflectance = body.reflectance.build()?;
+    let albedo_map = match &body.albedo_map {
+        Some(m) => {
+            let lo = m.min;
+            let hi = m.max;
+            if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi >= lo) {
+                return Err(Error::invalid(
+                    "body.albedo_map",
+                    "need finite 0 <= min <= max",
+                ));
+            }
+            let mut map = match m.encoding {
+                MapEncoding::Linear => load_map(body_base, &m.path, "body.albedo_map.path")?,
+                MapEncoding::Srgb => {
+                    let p = resolve(body_base, &m.path);
+                    EquirectMap::load_srgb(&p)
+                        .map_err(|e| Error::invalid("body.albedo_map.path", e.to_string()))?
+                }
+            };
+            map.stretch(lo, hi);
+            Some(map)
+        }
+        None => None,
+    };
+    let albedo_spectrum = match &body.albedo_spectrum {
+        Some(rows) => Some(Table::new(
+            rows.iter().map(|r| r[0] * 1e-9).collect(),
+            rows.iter().map(|r| r[1]).collect(),
+            "body.albedo_spectrum",
+        )?),
+        None => None,
+    };
+    let mut relief = Relief::default();
+    if let Some(d) = &body.displacement_map {
+        if !d.scale.is_finite() {
+            return Err(Error::invalid("body.displacement_map.scale", "not finite"));
+        }
+        let mut height = load_map(body_base, &d.path, "body.displacement_map.path")?;
+        height.scale(d.scale);
+        let (d_lat, d_lon) = height.gradients();
+        relief.height = Some((height, d_lat, d_lon));
+    }
+    if let Some(n) = &body.normal_map {
+        let p = resolve(body_base, &n.path);
+        relief.normals = Some(
+            NormalMap::load(&p)
+                .map_err(|e| Error::invalid("body.normal_map.path", e.to_string()))?,
+        );
+    }
+    Ok(Body {
+        radius,
+        reflectance,
+        albedo_map,
+        albedo_spectrum,
+        relief,
+    })
+}
+
+impl Body {
+    /// Read a body file (`[body]` table, as `configs/bodies/moon.toml`);
+    /// errors name the file.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let file: BodyFileOnly =
+            toml::from_str(&text).map_err(|e| Error::parse(path, e.to_string()))?;
+        body_from(&file.body, path.parent().unwrap_or(Path::new(".")))
+            .map_err(|e| Error::parse(path, e.to_string()))
     }
 }
 
@@ -437,6 +588,20 @@ fn response(r: &ResponseFile, base: &Path, field: &str) -> Result<Response> {
         ResponseFile::Table(p) => Table::from_csv(&resolve(base, p))
             .map(Response::Table)
             .map_err(|e| Error::invalid(field, e.to_string())),
+        ResponseFile::Normalised(t) => {
+            let table = Table::from_csv(&resolve(base, &t.path))
+                .map_err(|e| Error::invalid(field, e.to_string()))?;
+            match t.normalisation {
+                Normalisation::Photon => Ok(Response::Table(table)),
+                Normalisation::Energy if field.ends_with("quantum_efficiency") => {
+                    Ok(Response::AmpsPerWatt(table))
+                }
+                Normalisation::Energy => Err(Error::invalid(
+                    field,
+                    "a transmission is a fraction: normalisation = \"energy\" applies to quantum_efficiency only",
+                )),
+            }
+        }
     }
 }
 

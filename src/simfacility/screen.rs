@@ -91,7 +91,7 @@ pub fn load_response(spec: &ResponseSpec) -> Result<Response> {
 fn response_knots(r: &Response) -> Vec<f64> {
     match r {
         Response::Constant(_) => Vec::new(),
-        Response::Table(t) => t.wavelengths.clone(),
+        Response::Table(t) | Response::AmpsPerWatt(t) => t.wavelengths.clone(),
     }
 }
 

@@ -140,10 +140,14 @@ pub fn model_choice(model: &str) -> Result<ModelChoice> {
              w = 0.21, single-lobe Henyey-Greenstein g = -0.29, theta_bar = 20 deg, SHOE B_S0 = 2.01, h_S = 0.07; \
              no CBOE, no porosity correction (K = 1)",
         ),
+        "moon" => (
+            "",
+            "the bundled Moon anchored to LIME (configs/bodies/moon.toml, docs/MOON.md): its own map and spectral parameters",
+        ),
         other => {
             return Err(Error::invalid(
                 "validate.model",
-                format!("unknown model `{other}` (oren_nayar, hapke, lambert, lommel_seeliger)"),
+                format!("unknown model `{other}` (oren_nayar, hapke, lambert, lommel_seeliger, moon)"),
             ))
         }
     };
@@ -406,14 +410,29 @@ pub fn build_scene(
         transmission: Response::Constant(1.0),
     };
     let sun = SolarSpectrum::from_csv(&options.solar_spectrum, Some(1361.0))?;
-    let reflectance = reflectance_config(choice)?.build()?;
-    let albedo_map = match &options.albedo_map {
-        Some(p) => {
-            let mut m = EquirectMap::load(p)?;
-            m.stretch(options.albedo_range.0, options.albedo_range.1);
-            Some(m)
+    let body = if choice.name == "moon" {
+        // The body file sits in configs/bodies/ next to data/.
+        let data = options.solar_spectrum.parent().and_then(Path::parent);
+        let path = data
+            .unwrap_or(Path::new("data"))
+            .join("../configs/bodies/moon.toml");
+        Body::from_file(&path)?
+    } else {
+        let albedo_map = match &options.albedo_map {
+            Some(p) => {
+                let mut m = EquirectMap::load(p)?;
+                m.stretch(options.albedo_range.0, options.albedo_range.1);
+                Some(m)
+            }
+            None => None,
+        };
+        Body {
+            radius: MOON_RADIUS_M,
+            reflectance: reflectance_config(choice)?.build()?,
+            albedo_map,
+            albedo_spectrum: None,
+            relief: Relief::default(),
         }
-        None => None,
     };
     let s = &obs.scene;
     let q = |v: [f64; 4]| DQuat::from_xyzw(v[1], v[2], v[3], v[0]).normalize();
@@ -436,12 +455,7 @@ pub fn build_scene(
     Ok(Scene {
         camera,
         sun,
-        body: Body {
-            radius: MOON_RADIUS_M,
-            reflectance,
-            albedo_map,
-            relief: Relief::default(),
-        },
+        body,
         state,
         render,
     })

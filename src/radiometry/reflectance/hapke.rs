@@ -87,6 +87,75 @@ impl SpectralAlbedo {
     }
 }
 
+/// A parameter given as a number or a `[[wavelength_nm, value], ...]`
+/// table: its value at [`REFERENCE_WAVELENGTH_M`] and the table, checked
+/// row by row with `ok` (`range` names the allowed interval in errors).
+fn spectral_value(
+    v: &HapkeAlbedo,
+    field: &str,
+    range: &str,
+    ok: impl Fn(f64) -> bool,
+) -> Result<(f64, Option<SpectralAlbedo>)> {
+    let rows = match v {
+        HapkeAlbedo::Constant(v) if ok(*v) => return Ok((*v, None)),
+        HapkeAlbedo::Constant(v) => {
+            return Err(Error::invalid(
+                field,
+                format!("must be in {range}, got {v}"),
+            ))
+        }
+        HapkeAlbedo::Table(rows) => rows,
+    };
+    if rows.is_empty() {
+        return Err(Error::invalid(
+            field,
+            "table [[wavelength_nm, value], ...] is empty",
+        ));
+    }
+    for (k, &[l, v]) in rows.iter().enumerate() {
+        if !(l.is_finite() && l > 0.0) {
+            return Err(Error::invalid(
+                field,
+                format!("row {k}: wavelength must be finite and > 0 nm, got {l}"),
+            ));
+        }
+        if k > 0 && l <= rows[k - 1][0] {
+            return Err(Error::invalid(
+                field,
+                format!(
+                    "row {k}: wavelengths must be strictly increasing ({l} nm after {} nm)",
+                    rows[k - 1][0]
+                ),
+            ));
+        }
+        if !ok(v) {
+            return Err(Error::invalid(
+                field,
+                format!("row {k}: value must be in {range}, got {v}"),
+            ));
+        }
+    }
+    let s = SpectralAlbedo {
+        wavelength_m: rows.iter().map(|r| r[0] * 1e-9).collect(),
+        w: rows.iter().map(|r| r[1]).collect(),
+    };
+    Ok((s.at(REFERENCE_WAVELENGTH_M), Some(s)))
+}
+
+/// A parameter back as a configuration value.
+fn as_config(v: f64, table: &Option<SpectralAlbedo>) -> HapkeAlbedo {
+    match table {
+        None => HapkeAlbedo::Constant(v),
+        Some(s) => HapkeAlbedo::Table(
+            s.wavelength_m
+                .iter()
+                .zip(&s.w)
+                .map(|(l, w)| [l * 1e9, *w])
+                .collect(),
+        ),
+    }
+}
+
 /// Precomputed macroscopic-roughness constants (θ̄ > 0).
 #[derive(Clone, Debug, PartialEq)]
 struct Roughness {
@@ -140,6 +209,9 @@ pub struct Hapke {
     pub(super) w: f64,
     /// w(λ) when spectral.
     pub(super) spectral: Option<SpectralAlbedo>,
+    /// b(λ), c(λ), h_S(λ), B_S0(λ) when given as tables (the lunar phase
+    /// curve reddens: its shape changes with λ, not only its level).
+    pub(super) phase_tables: Box<[Option<SpectralAlbedo>; 4]>,
     /// b.
     pub(super) b: f64,
     /// c (Hapke's convention: c > 0 favours backscatter).
@@ -237,76 +309,27 @@ impl Hapke {
             unreachable!("Hapke::from_config on {cfg:?}")
         };
         let field = |k: &str| format!("{prefix}.{k}");
-        let w_ok = |v: f64| v.is_finite() && v > 0.0 && v <= 1.0;
-        let (w_const, spectral) = match w {
-            HapkeAlbedo::Constant(v) => {
-                if !w_ok(*v) {
-                    return Err(Error::invalid(
-                        field("w"),
-                        format!("must be in (0, 1], got {v}"),
-                    ));
-                }
-                (*v, None)
-            }
-            HapkeAlbedo::Table(rows) => {
-                if rows.is_empty() {
-                    return Err(Error::invalid(
-                        field("w"),
-                        "table [[wavelength_nm, w], ...] is empty",
-                    ));
-                }
-                for (k, &[l, v]) in rows.iter().enumerate() {
-                    if !(l.is_finite() && l > 0.0) {
-                        return Err(Error::invalid(
-                            field("w"),
-                            format!("row {k}: wavelength must be finite and > 0 nm, got {l}"),
-                        ));
-                    }
-                    if k > 0 && l <= rows[k - 1][0] {
-                        return Err(Error::invalid(
-                            field("w"),
-                            format!("row {k}: wavelengths must be strictly increasing ({l} nm after {} nm)", rows[k - 1][0]),
-                        ));
-                    }
-                    if !w_ok(v) {
-                        return Err(Error::invalid(
-                            field("w"),
-                            format!("row {k}: w must be in (0, 1], got {v}"),
-                        ));
-                    }
-                }
-                let s = SpectralAlbedo {
-                    wavelength_m: rows.iter().map(|r| r[0] * 1e-9).collect(),
-                    w: rows.iter().map(|r| r[1]).collect(),
-                };
-                (s.at(REFERENCE_WAVELENGTH_M), Some(s))
-            }
-        };
-        if !(b.is_finite() && b.abs() < 1.0) {
-            return Err(Error::invalid(
-                field("b"),
-                format!("must satisfy |b| < 1, got {b}"),
-            ));
-        }
-        if !(c.is_finite() && c.abs() <= 1.0) {
-            return Err(Error::invalid(
-                field("c"),
-                format!("must be in [-1, 1], got {c}"),
-            ));
-        }
+        let (w_const, spectral) = spectral_value(w, &field("w"), "(0, 1]", |v| {
+            v.is_finite() && v > 0.0 && v <= 1.0
+        })?;
+        let (b_const, b_table) = spectral_value(b, &field("b"), "(-1, 1)", |v| {
+            v.is_finite() && v.abs() < 1.0
+        })?;
+        let (c_const, c_table) = spectral_value(c, &field("c"), "[-1, 1]", |v| {
+            v.is_finite() && v.abs() <= 1.0
+        })?;
+        let (h_s_const, h_s_table) =
+            spectral_value(h_s, &field("h_s"), "(0, inf)", |v| v.is_finite() && v > 0.0)?;
+        let (b_s0_const, b_s0_table) = spectral_value(b_s0, &field("b_s0"), "[0, inf)", |v| {
+            v.is_finite() && v >= 0.0
+        })?;
+        let phase_tables = Box::new([b_table, c_table, h_s_table, b_s0_table]);
         if !(theta_bar.is_finite() && *theta_bar >= 0.0 && *theta_bar < PI / 2.0) {
             return Err(Error::invalid(
                 field("theta_bar"),
                 format!("must be in [0, pi/2) radians, got {theta_bar}"),
             ));
         }
-        if !(h_s.is_finite() && *h_s > 0.0) {
-            return Err(Error::invalid(
-                field("h_s"),
-                format!("must be finite and > 0, got {h_s}"),
-            ));
-        }
-        check_nonneg(prefix, "b_s0", *b_s0)?;
         if let Some(h) = h_c {
             if !(h.is_finite() && *h > 0.0) {
                 return Err(Error::invalid(
@@ -340,11 +363,12 @@ impl Hapke {
         Ok(Self {
             w: w_const,
             spectral,
-            b: *b,
-            c: *c,
+            phase_tables,
+            b: b_const,
+            c: c_const,
             theta_bar: *theta_bar,
-            h_s: *h_s,
-            b_s0: *b_s0,
+            h_s: h_s_const,
+            b_s0: b_s0_const,
             h_c: *h_c,
             b_c0: *b_c0,
             porosity_k: *porosity_k,
@@ -356,21 +380,12 @@ impl Hapke {
     /// The parameters as a configuration (round-trips through [`ReflectanceConfig::build`]).
     pub fn params(&self) -> ReflectanceConfig {
         ReflectanceConfig::Hapke {
-            w: match &self.spectral {
-                None => HapkeAlbedo::Constant(self.w),
-                Some(s) => HapkeAlbedo::Table(
-                    s.wavelength_m
-                        .iter()
-                        .zip(&s.w)
-                        .map(|(l, w)| [l * 1e9, *w])
-                        .collect(),
-                ),
-            },
-            b: self.b,
-            c: self.c,
+            w: as_config(self.w, &self.spectral),
+            b: as_config(self.b, &self.phase_tables[0]),
+            c: as_config(self.c, &self.phase_tables[1]),
             theta_bar: self.theta_bar,
-            h_s: self.h_s,
-            b_s0: self.b_s0,
+            h_s: as_config(self.h_s, &self.phase_tables[2]),
+            b_s0: as_config(self.b_s0, &self.phase_tables[3]),
             h_c: self.h_c,
             b_c0: self.b_c0,
             porosity_k: self.porosity_k,
@@ -382,9 +397,33 @@ impl Hapke {
         self.w
     }
 
-    /// Whether w is a w(λ) table.
+    /// Whether any parameter (w, b, c, h_S, B_S0) is a table in λ.
     pub fn is_spectral(&self) -> bool {
+        self.spectral.is_some() || self.phase_tables.iter().any(Option::is_some)
+    }
+
+    /// Whether w is a w(λ) table.
+    pub fn has_spectral_albedo(&self) -> bool {
         self.spectral.is_some()
+    }
+
+    /// The model with every tabulated parameter evaluated at `wavelength_m`
+    /// (a model constant in λ, for one sub-band).
+    pub fn at_wavelength(&self, wavelength_m: f64) -> Hapke {
+        let value =
+            |v: f64, t: &Option<SpectralAlbedo>| t.as_ref().map_or(v, |t| t.at(wavelength_m));
+        let w = self.albedo_at(wavelength_m);
+        Hapke {
+            w,
+            spectral: None,
+            phase_tables: Default::default(),
+            b: value(self.b, &self.phase_tables[0]),
+            c: value(self.c, &self.phase_tables[1]),
+            h_s: value(self.h_s, &self.phase_tables[2]),
+            b_s0: value(self.b_s0, &self.phase_tables[3]),
+            r0: r0_of(w),
+            ..self.clone()
+        }
     }
 
     /// w(λ), or the constant w.
@@ -517,11 +556,11 @@ mod tests {
     fn config(w: f64, theta_bar: f64, b: f64, c: f64, h_s: f64, b_s0: f64) -> ReflectanceConfig {
         ReflectanceConfig::Hapke {
             w: HapkeAlbedo::Constant(w),
-            b,
-            c,
+            b: HapkeAlbedo::Constant(b),
+            c: HapkeAlbedo::Constant(c),
             theta_bar,
-            h_s,
-            b_s0,
+            h_s: HapkeAlbedo::Constant(h_s),
+            b_s0: HapkeAlbedo::Constant(b_s0),
             h_c: None,
             b_c0: 0.0,
             porosity_k: 1.0,

@@ -105,17 +105,18 @@ pub enum ReflectanceConfig {
         /// Single-scattering albedo w ∈ (0, 1]: a number, or a table
         /// `[[wavelength_nm, w], ...]` interpolated linearly in wavelength.
         w: HapkeAlbedo,
-        /// Double Henyey–Greenstein asymmetry |b| < 1.
-        b: f64,
+        /// Double Henyey–Greenstein asymmetry |b| < 1 (number or table in λ,
+        /// like `w`).
+        b: HapkeAlbedo,
         /// Double Henyey–Greenstein lobe weight c ∈ [−1, 1], Hapke's
-        /// convention: c > 0 favours backscatter.
-        c: f64,
+        /// convention: c > 0 favours backscatter (number or table in λ).
+        c: HapkeAlbedo,
         /// Mean slope angle θ̄ ∈ [0, π/2) of macroscopic roughness (radians).
         theta_bar: f64,
-        /// Shadow-hiding opposition width h_S > 0.
-        h_s: f64,
-        /// Shadow-hiding opposition amplitude B_S0 ≥ 0.
-        b_s0: f64,
+        /// Shadow-hiding opposition width h_S > 0 (number or table in λ).
+        h_s: HapkeAlbedo,
+        /// Shadow-hiding opposition amplitude B_S0 ≥ 0 (number or table in λ).
+        b_s0: HapkeAlbedo,
         /// Coherent-backscatter width h_C > 0; absent: no CBOE.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         h_c: Option<f64>,
@@ -301,8 +302,24 @@ impl Reflectance {
         }
     }
 
-    /// False only for a Hapke model with a spectral w(λ) table: then the
-    /// radiance factor, and so PF_i, differ between wavelengths.
+    /// The model at one wavelength: a Hapke model with tables in λ
+    /// evaluated there (constant in λ); every other model as is.
+    pub fn at_wavelength(&self, wavelength_m: f64) -> Reflectance {
+        match self {
+            Reflectance::Hapke(m) => Reflectance::Hapke(m.at_wavelength(wavelength_m)),
+            other => other.clone(),
+        }
+    }
+
+    /// Whether the albedo parameter itself is a table in λ (Hapke `w(λ)`):
+    /// with an albedo map, the map is then a relative pattern multiplied by
+    /// the table.
+    pub fn has_spectral_albedo(&self) -> bool {
+        matches!(self, Reflectance::Hapke(m) if m.has_spectral_albedo())
+    }
+
+    /// False only for a Hapke model with a parameter tabulated in λ: then
+    /// the radiance factor, and so PF_i, differ between wavelengths.
     pub fn is_spectrally_flat(&self) -> bool {
         match self {
             Reflectance::Hapke(m) => !m.is_spectral(),
