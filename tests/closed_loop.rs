@@ -56,8 +56,8 @@ fn facility_toml(dir: &Path, lut: &Path, flat: Option<&Path>, geometry: Option<&
 scene = "{scene}"
 trajectory = "{traj}"
 [screen]
-resolution = [400, 300]
-pixel_pitch = 1.0e-4
+resolution = [600, 450]
+pixel_pitch = 6.66667e-5
 refresh_hz = 60.0
 [collimator]
 focal_length = 0.8
@@ -95,8 +95,8 @@ degree = 4
 camera_flat = "{camera_flat}"
 [calibrate.geometric]
 intrinsics = "{intrinsics}"
-spacing_px = 24
-radius_px = 3.0
+spacing_px = 36
+radius_px = 4.5
 exposure = 0.0333
 [calibrate.meter]
 kind = "sim"
@@ -418,11 +418,11 @@ fn calibrated_simulated_facility_reproduces_the_render() {
 
 /// The simulated facility's true LUT (camera-effective radiance at the
 /// screen centre, now), flat field (its non-uniformity relative to the
-/// centre) and geometry (a 20 px lattice of its true map): what a perfect
+/// centre) and geometry (a 30 px lattice of its true map): what a perfect
 /// calibration would write.
 fn truth_files(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
     let sim = SimFacility::load(data("simfacility.toml")).unwrap();
-    let (w, h) = (400usize, 300usize);
+    let (w, h) = (600usize, 450usize);
     let centre = (0.5 * w as f64, 0.5 * h as f64);
     let mut lut = String::from("drive_level,radiance_w_m2_sr\n");
     for level in 0..256 {
@@ -444,8 +444,8 @@ fn truth_files(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
         .save(&flat_path)
         .unwrap();
     let mut geo = String::from("u_px,v_px,tan_x,tan_y\n");
-    for v in (0..=h).step_by(20) {
-        for u in (0..=w).step_by(20) {
+    for v in (0..=h).step_by(30) {
+        for u in (0..=w).step_by(30) {
             let (tx, ty) = sim.true_geometry(u as f64, v as f64);
             geo.push_str(&format!("{u},{v},{tx:e},{ty:e}\n"));
         }
