@@ -173,3 +173,63 @@ mod spectral_tables {
         }
     }
 }
+
+/// A little-endian baseline TIFF header whose one strip holds 16 bytes but
+/// whose tags claim `width` × `height` single-channel pixels of `bits`
+/// (float when `float`): what a corrupt or hostile map file looks like.
+fn tiff_claiming(width: u32, height: u32, bits: u16, float: bool) -> Vec<u8> {
+    let tags: [(u16, u16, u32); 9] = [
+        (256, 4, width),  // ImageWidth
+        (257, 4, height), // ImageLength
+        (258, 3, bits as u32),
+        (259, 3, 1),                  // no compression
+        (262, 3, 1),                  // black is zero
+        (273, 4, 8 + 2 + 9 * 12 + 4), // the strip follows the IFD
+        (277, 3, 1),
+        (278, 4, height),
+        (279, 4, 16),
+    ];
+    let mut t = b"II*\0".to_vec();
+    t.extend_from_slice(&8u32.to_le_bytes());
+    let n = tags.len() as u16 + u16::from(float);
+    t.extend_from_slice(&n.to_le_bytes());
+    let entry = |tag: u16, kind: u16, value: u32, t: &mut Vec<u8>| {
+        t.extend_from_slice(&tag.to_le_bytes());
+        t.extend_from_slice(&kind.to_le_bytes());
+        t.extend_from_slice(&1u32.to_le_bytes());
+        match kind {
+            3 => t.extend_from_slice(&[value as u8, (value >> 8) as u8, 0, 0]),
+            _ => t.extend_from_slice(&value.to_le_bytes()),
+        }
+    };
+    for &(tag, kind, value) in &tags {
+        entry(tag, kind, value, &mut t);
+    }
+    if float {
+        entry(339, 3, 3, &mut t); // SampleFormat: IEEE float
+    }
+    t.extend_from_slice(&0u32.to_le_bytes());
+    // With SampleFormat the strip starts 12 bytes later; pad so either works.
+    t.extend_from_slice(&[0u8; 32]);
+    t
+}
+
+/// A map file whose header claims 100 000 × 100 000 pixels is refused from
+/// its header, as a float TIFF and as an 8-bit one, without allocating.
+#[test]
+fn a_map_claiming_a_huge_size_is_refused_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    for (bits, float) in [(32u16, true), (8, false), (16, false)] {
+        let path = dir.path().join(format!("huge_{bits}.tif"));
+        std::fs::write(&path, tiff_claiming(100_000, 100_000, bits, float)).unwrap();
+        let start = std::time::Instant::now();
+        let err = optistim::scene::EquirectMap::load(&path)
+            .err()
+            .unwrap_or_else(|| panic!("{bits}-bit map accepted"))
+            .to_string();
+        assert!(err.contains("huge_"), "{err}");
+        assert!(start.elapsed().as_secs_f64() < 5.0, "{bits}-bit: slow");
+        assert!(!err.contains('\n'), "{err}");
+        println!("{err}");
+    }
+}

@@ -13,6 +13,48 @@ use glam::DVec3;
 
 use crate::error::{Error, Result};
 
+/// Largest map accepted, in pixels (16384 × 8192: 22 m per pixel on the
+/// Moon's equator). Checked from the header before any pixel is decoded, so
+/// a small file that claims a huge image is refused rather than allocated.
+pub const MAX_MAP_PIXELS: u64 = 1 << 27;
+
+/// TIFF decoder limits for a float map of at most [`MAX_MAP_PIXELS`].
+fn map_tiff_limits() -> tiff::decoder::Limits {
+    let mut limits = tiff::decoder::Limits::default();
+    limits.decoding_buffer_size = (MAX_MAP_PIXELS * 4) as usize;
+    limits.intermediate_buffer_size = (MAX_MAP_PIXELS * 4) as usize;
+    limits
+}
+
+/// Opens an 8/16-bit image with its size checked against
+/// [`MAX_MAP_PIXELS`] before decoding.
+fn open_bounded(path: &Path) -> Result<image::DynamicImage> {
+    let perr = |e: image::ImageError| Error::parse(path, e.to_string());
+    let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
+        image::ImageReader::open(path)
+            .map_err(|e| Error::io(path, e))?
+            .with_guessed_format()
+            .map_err(|e| Error::io(path, e))
+    };
+    let (w, h) = reader()?.into_dimensions().map_err(perr)?;
+    check_map_size(path, w, h)?;
+    let mut decoding = reader()?;
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(MAX_MAP_PIXELS * 8);
+    decoding.limits(limits);
+    decoding.decode().map_err(perr)
+}
+
+fn check_map_size(path: &Path, w: u32, h: u32) -> Result<()> {
+    if w as u64 * h as u64 > MAX_MAP_PIXELS {
+        return Err(Error::parse(
+            path,
+            format!("map is {w}×{h} pixels; at most {MAX_MAP_PIXELS} pixels are accepted"),
+        ));
+    }
+    Ok(())
+}
+
 /// A scalar map sampled bilinearly.
 #[derive(Clone, Debug)]
 pub struct EquirectMap {
@@ -141,7 +183,7 @@ impl EquirectMap {
         if let Some(map) = Self::load_float_tiff(path)? {
             return Ok(map);
         }
-        let img = image::open(path).map_err(|e| Error::parse(path, e.to_string()))?;
+        let img = open_bounded(path)?;
         let (width, height) = (img.width() as usize, img.height() as usize);
         let rgb = img.to_rgb32f();
         let data = rgb
@@ -155,7 +197,7 @@ impl EquirectMap {
     /// sRGB transfer curve per channel before averaging, so that values are
     /// proportional to reflected light (IEC 61966-2-1).
     pub fn load_srgb(path: &Path) -> Result<Self> {
-        let img = image::open(path).map_err(|e| Error::parse(path, e.to_string()))?;
+        let img = open_bounded(path)?;
         let (width, height) = (img.width() as usize, img.height() as usize);
         let rgb = img.to_rgb32f();
         let data = rgb
@@ -176,13 +218,14 @@ impl EquirectMap {
         let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
         let mut decoder = tiff::decoder::Decoder::new(std::io::BufReader::new(file))
             .map_err(|e| Error::parse(path, e.to_string()))?
-            .with_limits(tiff::decoder::Limits::unlimited());
+            .with_limits(map_tiff_limits());
         if decoder.colortype().ok() != Some(tiff::ColorType::Gray(32)) {
             return Ok(None);
         }
         let (w, h) = decoder
             .dimensions()
             .map_err(|e| Error::parse(path, e.to_string()))?;
+        check_map_size(path, w, h)?;
         match decoder
             .read_image()
             .map_err(|e| Error::parse(path, e.to_string()))?
@@ -468,7 +511,7 @@ pub struct NormalMap {
 impl NormalMap {
     /// Read an RGB normal map.
     pub fn load(path: &Path) -> Result<Self> {
-        let img = image::open(path).map_err(|e| Error::parse(path, e.to_string()))?;
+        let img = open_bounded(path)?;
         let (width, height) = (img.width() as usize, img.height() as usize);
         if width < 2 || height < 2 {
             return Err(Error::parse(path, "map must be at least 2x2 pixels"));
