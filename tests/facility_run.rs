@@ -684,6 +684,12 @@ fn serial_device_gone_does_not_stop_or_block_the_run() {
     assert_eq!(refused.len(), 3);
     assert!(refused[0].starts_with("FRAME 2 "), "{refused:?}");
     assert_eq!(sync.sent_lines().len(), 5);
+    assert_eq!(
+        summary.sync_not_sent, 3,
+        "the summary counts the refused lines"
+    );
+    assert_eq!(summary.safe_frames, 0);
+    assert_eq!(summary.udp_kernel_drops, None, "open loop: no UDP socket");
     for r in &records {
         let gone = (2..5).contains(&r.frame);
         assert_eq!(r.t_ack.is_none(), gone, "frame {}", r.frame);
@@ -766,6 +772,11 @@ fn state_timeout_shows_the_safe_black_frame() {
         summary.latency_state_to_present.count,
         (last - first + 1) as u64
     );
+    // The summary counts the safe frames the log shows; loopback lost none.
+    let safe = records.iter().filter(|r| r.safe_frame).count() as u64;
+    assert_eq!(summary.safe_frames, safe);
+    assert_eq!(summary.sync_not_sent, 0);
+    assert_eq!(summary.udp_kernel_drops, Some(0));
 }
 
 #[test]

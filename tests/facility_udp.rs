@@ -114,3 +114,48 @@ fn accepts_exactly_the_valid_in_order_states() {
     // 5 and 6 were handed out only if they arrived in separate drains.
     assert!(rx.stats().superseded <= 2);
 }
+
+/// Datagrams sent faster than they are read overflow the socket's receive
+/// buffer; the kernel's drop count (Linux) accounts for every datagram that
+/// the receiver never saw: seen + dropped by the kernel = sent.
+#[test]
+fn kernel_drops_account_for_what_the_receive_buffer_lost() {
+    let mut rx = UdpStateReceiver::bind(
+        "127.0.0.1:0".parse().unwrap(),
+        "127.0.0.1:0".parse().unwrap(),
+    )
+    .unwrap();
+    let to = rx.local_addr().unwrap();
+    let client = UdpSocket::bind("127.0.0.1:0").unwrap();
+    assert_eq!(
+        rx.kernel_drops(),
+        Some(0),
+        "a fresh socket has dropped nothing"
+    );
+    // ~1 KB each: 20 000 of them are far more than a default receive
+    // buffer holds.
+    let pad = " ".repeat(900);
+    let sent = 20_000u64;
+    for i in 0..sent {
+        let line = csv_state(i as f64, -1e7);
+        client
+            .send_to(format!("{}{pad}", line.trim_end()).as_bytes(), to)
+            .unwrap();
+    }
+    // Drain everything still queued.
+    let mut quiet = 0;
+    while quiet < 50 {
+        let before = rx.stats().total();
+        rx.latest();
+        quiet = if rx.stats().total() == before {
+            quiet + 1
+        } else {
+            0
+        };
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let drops = rx.kernel_drops().expect("Linux reports the drops");
+    let seen = rx.stats().total();
+    assert!(drops > 0, "nothing dropped: seen {seen}");
+    assert_eq!(seen + drops, sent, "seen {seen} + dropped {drops}");
+}

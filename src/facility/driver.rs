@@ -36,6 +36,7 @@ use super::geometry::{GeometryCalibration, PreWarp};
 use super::log::{FrameLog, FrameRecord, Summary};
 use super::lut::{DisplayLut, FlatField};
 use super::serial::{CommandTemplate, FrameCommand, SendOutcome, SyncPort};
+use super::throttle::Throttle;
 use super::trajectory::{State as TrajectoryState, Trajectory};
 use super::udp::UdpStateReceiver;
 use crate::error::{Error, Result};
@@ -405,7 +406,9 @@ enum Source {
 }
 
 /// The render thread: waits for a free buffer, takes the newest state,
-/// renders, converts, draws the frame id, and hands the frame over.
+/// renders, converts, draws the frame id, and hands the frame over. Returns
+/// the datagrams the kernel dropped from the UDP socket's receive buffer,
+/// where the OS tells (closed loop on Linux).
 #[allow(clippy::too_many_arguments)]
 fn render_loop(
     scene: Scene,
@@ -421,8 +424,9 @@ fn render_loop(
     dropped: Arc<std::sync::atomic::AtomicU64>,
     pacer: Option<Arc<Pacer>>,
     period: Duration,
-) -> Result<()> {
+) -> Result<Option<u64>> {
     let black = converter.black_pixel();
+    let mut no_state = Throttle::default();
     let mut budget = Budget {
         recent: std::collections::VecDeque::with_capacity(BUDGET_WINDOW),
     };
@@ -517,7 +521,13 @@ fn render_loop(
         }
         drawn[slot].1 = roi;
         if safe {
-            tracing::warn!(frame, "no current state: showing the safe (black) frame");
+            if let Some(more) = no_state.hit(Instant::now()) {
+                tracing::warn!(
+                    frame,
+                    more,
+                    "no current state: showing the safe (black) frame"
+                );
+            }
         }
         frame_id.encode(&mut buffer, frame)?;
         let convert_end = Instant::now();
@@ -539,7 +549,10 @@ fn render_loop(
         }
         frame += 1;
     }
-    Ok(())
+    Ok(match &source {
+        Source::Udp(rx) => rx.kernel_drops(),
+        Source::Replay { .. } => None,
+    })
 }
 
 /// Renders made before the first frame: they build what the renderer makes
@@ -723,6 +736,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
 
     let ack_timeout = Duration::from_secs_f64(config.sync.ack_timeout);
     let mut schedule: Option<Instant> = None;
+    let mut unsent = Throttle::default();
     let mut result = Ok(());
     while !stop.load(Ordering::Relaxed) {
         let job = match ready_rx.recv_timeout(Duration::from_millis(200)) {
@@ -778,8 +792,18 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
                     }
                 }
             }
-            Ok(other) => tracing::warn!(frame = job.frame, ?other, "sync line not sent"),
-            Err(e) => tracing::warn!(frame = job.frame, error = %e, "sync failed"),
+            Ok(other) => {
+                log.add_sync_not_sent();
+                if let Some(more) = unsent.hit(Instant::now()) {
+                    tracing::warn!(frame = job.frame, more, "sync line not sent: {other:?}");
+                }
+            }
+            Err(e) => {
+                log.add_sync_not_sent();
+                if let Some(more) = unsent.hit(Instant::now()) {
+                    tracing::warn!(frame = job.frame, more, error = %e, "sync failed");
+                }
+            }
         }
         let record = FrameRecord {
             run: String::new(),
@@ -837,6 +861,9 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         .join()
         .map_err(|_| Error::Other("render thread panicked".into()))?;
     log.add_dropped_states(dropped.load(Ordering::Relaxed));
+    if let Ok(Some(n)) = worker_result {
+        log.set_udp_kernel_drops(n);
+    }
     let summary = log.write_summary(&plan.summary)?;
     result?;
     worker_result?;

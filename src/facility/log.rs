@@ -233,6 +233,18 @@ pub struct Summary {
     /// first frame (see `driver::run`); None when none was done.
     #[serde(default)]
     pub preflight_render: Option<f64>,
+    /// Frames that showed the safe (black) frame: no current state.
+    #[serde(default)]
+    pub safe_frames: u64,
+    /// Frames whose sync line was not sent (device gone, writer behind,
+    /// error).
+    #[serde(default)]
+    pub sync_not_sent: u64,
+    /// Datagrams the kernel dropped from the closed loop's UDP receive
+    /// buffer (Linux: /proc/net/udp); None in open loop or where the OS
+    /// does not tell.
+    #[serde(default)]
+    pub udp_kernel_drops: Option<u64>,
 }
 
 /// True when `file` is non-empty and its last byte is not a newline.
@@ -259,6 +271,9 @@ pub struct FrameLog {
     dropped_states: u64,
     latencies: LatencyHistogram,
     preflight_render: Option<f64>,
+    safe_frames: u64,
+    sync_not_sent: u64,
+    udp_kernel_drops: Option<u64>,
 }
 
 impl FrameLog {
@@ -293,6 +308,9 @@ impl FrameLog {
             dropped_states: 0,
             latencies: LatencyHistogram::new(),
             preflight_render: None,
+            safe_frames: 0,
+            sync_not_sent: 0,
+            udp_kernel_drops: None,
         })
     }
 
@@ -327,6 +345,7 @@ impl FrameLog {
         self.file.sync_data().map_err(io)?;
         self.frames += 1;
         self.missed += u64::from(rec.missed);
+        self.safe_frames += u64::from(rec.safe_frame);
         if let Some(r) = rec.t_state_received {
             self.latencies.add(rec.t_presented - r);
         }
@@ -336,6 +355,16 @@ impl FrameLog {
     /// Records the pre-flight render time [s] for the summary.
     pub fn set_preflight_render(&mut self, seconds: f64) {
         self.preflight_render = Some(seconds);
+    }
+
+    /// Counts one frame whose sync line was not sent.
+    pub fn add_sync_not_sent(&mut self) {
+        self.sync_not_sent += 1;
+    }
+
+    /// Records the kernel's drop count of the closed loop's UDP socket.
+    pub fn set_udp_kernel_drops(&mut self, n: u64) {
+        self.udp_kernel_drops = Some(n);
     }
 
     /// Counts states dropped before rendering.
@@ -352,6 +381,9 @@ impl FrameLog {
             dropped_states: self.dropped_states,
             latency_state_to_present: self.latencies.stats(),
             preflight_render: self.preflight_render,
+            safe_frames: self.safe_frames,
+            sync_not_sent: self.sync_not_sent,
+            udp_kernel_drops: self.udp_kernel_drops,
         }
     }
 

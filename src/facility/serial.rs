@@ -363,6 +363,7 @@ fn writer_loop(
     let mut next_try = Instant::now();
     let mut ever_opened = false;
     let mut logged_failure = false;
+    let mut timeouts = super::throttle::Throttle::default();
     let gone = |port: &mut Option<Box<dyn serialport::SerialPort>>, why: &str| {
         if port.take().is_some() {
             tracing::warn!(
@@ -421,7 +422,9 @@ fn writer_loop(
                     Ok(()) => shared.bump(|s| s.written += 1),
                     Err(e) if is_timeout(&e) => {
                         shared.bump(|s| s.write_errors += 1);
-                        tracing::warn!("sync write timed out: {e}");
+                        if let Some(more) = timeouts.hit(Instant::now()) {
+                            tracing::warn!(more, "sync write timed out: {e}");
+                        }
                     }
                     Err(e) => {
                         shared.bump(|s| {

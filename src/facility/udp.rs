@@ -65,6 +65,15 @@ impl UdpStats {
     }
 }
 
+/// The `drops` column (the last) of the row of a /proc/net/udp table whose
+/// `inode` column (the tenth) is `inode`.
+fn drops_of_inode(table: &str, inode: &str) -> Option<u64> {
+    table.lines().skip(1).find_map(|row| {
+        let cols: Vec<&str> = row.split_whitespace().collect();
+        (cols.len() >= 13 && cols[9] == inode).then(|| cols.last()?.parse().ok())?
+    })
+}
+
 /// Parses one datagram payload (CSV or JSON form); the error is a reason.
 pub fn parse_datagram(bytes: &[u8]) -> std::result::Result<State, String> {
     let text = std::str::from_utf8(bytes).map_err(|e| format!("not UTF-8: {e}"))?;
@@ -92,6 +101,7 @@ pub struct UdpStateReceiver {
     stats: UdpStats,
     last_rejection: Option<String>,
     buf: Vec<u8>,
+    errors_logged: super::throttle::Throttle,
 }
 
 impl UdpStateReceiver {
@@ -107,6 +117,7 @@ impl UdpStateReceiver {
             stats: UdpStats::default(),
             last_rejection: None,
             buf: vec![0; 65536],
+            errors_logged: Default::default(),
         })
     }
 
@@ -115,6 +126,24 @@ impl UdpStateReceiver {
         self.socket
             .local_addr()
             .map_err(|e| Error::io("udp socket", e))
+    }
+
+    /// Datagrams the kernel dropped because the socket's receive buffer
+    /// was full: the `drops` column of this socket's row in /proc/net/udp
+    /// (or udp6), found by the socket's inode. `None` where the OS does not
+    /// tell.
+    pub fn kernel_drops(&self) -> Option<u64> {
+        use std::os::fd::AsRawFd;
+        let link = std::fs::read_link(format!("/proc/self/fd/{}", self.socket.as_raw_fd())).ok()?;
+        let inode = link
+            .to_str()?
+            .strip_prefix("socket:[")?
+            .strip_suffix(']')?
+            .to_owned();
+        ["/proc/net/udp", "/proc/net/udp6"]
+            .iter()
+            .filter_map(|p| std::fs::read_to_string(p).ok())
+            .find_map(|table| drops_of_inode(&table, &inode))
     }
 
     /// Counters so far.
@@ -150,7 +179,9 @@ impl UdpStateReceiver {
                 Err(e) => {
                     // E.g. ICMP port unreachable reported on Linux: not fatal.
                     self.stats.socket_errors += 1;
-                    tracing::warn!("udp receive error: {e}");
+                    if let Some(more) = self.errors_logged.hit(Instant::now()) {
+                        tracing::warn!(more, "udp receive error: {e}");
+                    }
                     if self.stats.socket_errors.is_multiple_of(1000) {
                         break;
                     }
