@@ -1005,3 +1005,23 @@ fn cli_refuses_zero_frames_and_a_symlinked_summary() {
         .file_type()
         .is_symlink());
 }
+
+/// A log redirected to a file or a pipe carries no terminal colour codes.
+#[test]
+fn redirected_log_has_no_colour_codes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = optistim()
+        .args(["run", "configs/facility.toml", "--frames", "2", "--log"])
+        .arg(tmp.path().join("f.jsonl"))
+        .arg("--summary")
+        .arg(tmp.path().join("s.json"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("INFO"), "{stderr}");
+    assert!(
+        !stderr.contains('\u{1b}'),
+        "colour codes in a pipe: {stderr:?}"
+    );
+}
