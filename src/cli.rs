@@ -285,11 +285,50 @@ pub fn bench(
     Ok(())
 }
 
+/// Calibration files given on the command line, in place of the facility
+/// file's `[calibration]` entries: how a campaign's outputs are tried
+/// before the facility file is edited to point at them.
+#[derive(clap::Args, Default)]
+pub struct CalibrationFiles {
+    /// Display LUT CSV (replaces `calibration.lut`).
+    #[arg(long)]
+    pub lut: Option<std::path::PathBuf>,
+    /// Flat-field TIFF (replaces `calibration.flat_field`).
+    #[arg(long)]
+    pub flat_field: Option<std::path::PathBuf>,
+    /// Geometric calibration CSV (replaces `calibration.geometry`).
+    #[arg(long)]
+    pub geometry: Option<std::path::PathBuf>,
+}
+
+impl CalibrationFiles {
+    /// Loads the facility file with these files in place of its own, and
+    /// validates the result as a whole (a geometry file supersedes
+    /// `[alignment]`).
+    pub fn load_facility(&self, path: &std::path::Path) -> Result<FacilityConfig> {
+        let mut config = FacilityConfig::load(path)?;
+        let c = &mut config.calibration;
+        if let Some(p) = &self.lut {
+            c.lut.clone_from(p);
+        }
+        if let Some(p) = &self.flat_field {
+            c.flat_field = Some(p.clone());
+        }
+        if let Some(p) = &self.geometry {
+            c.geometry = Some(p.clone());
+        }
+        config.validate()?;
+        Ok(config)
+    }
+}
+
 /// Arguments of `optistim run`.
 #[derive(clap::Args)]
 pub struct RunArgs {
     /// Facility file (TOML).
     pub facility: std::path::PathBuf,
+    #[command(flatten)]
+    pub calibration: CalibrationFiles,
     /// Replay this trajectory (default: the facility file's).
     #[arg(long, conflicts_with = "listen")]
     pub trajectory: Option<std::path::PathBuf>,
@@ -353,7 +392,7 @@ impl SyncPort for NoSync {
 
 /// `optistim run`.
 pub fn run(args: &RunArgs) -> Result<()> {
-    let config = FacilityConfig::load(&args.facility)?;
+    let config = args.calibration.load_facility(&args.facility)?;
     let scene = Scene::from_file(&config.scenario.scene)?;
     let source = match (&args.listen, &args.trajectory, &config.scenario.trajectory) {
         (Some(url), _, _) => {

@@ -1025,3 +1025,34 @@ fn redirected_log_has_no_colour_codes() {
         "colour codes in a pipe: {stderr:?}"
     );
 }
+
+/// `--lut`, `--flat-field` and `--geometry` replace the facility file's
+/// calibration files: a missing override is the error, named.
+#[test]
+fn calibration_file_overrides_are_used() {
+    for (flag, path) in [
+        ("--lut", "no/such/lut.csv"),
+        ("--flat-field", "no/such/flat.tif"),
+        ("--geometry", "no/such/geometry.csv"),
+    ] {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = optistim()
+            .args([
+                "run",
+                "configs/facility.toml",
+                "--frames",
+                "1",
+                flag,
+                path,
+                "--log",
+            ])
+            .arg(tmp.path().join("f.jsonl"))
+            .arg("--summary")
+            .arg(tmp.path().join("s.json"))
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{flag}: {stderr}");
+        assert!(stderr.contains(path), "{flag}: {stderr}");
+    }
+}

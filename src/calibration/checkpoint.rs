@@ -41,7 +41,13 @@ impl Checkpoint {
     /// measurements); with `resume` its measurements are loaded and new
     /// ones appended.
     pub fn open(path: &Path, fingerprint: &str, routine: &str, resume: bool) -> Result<Checkpoint> {
-        let exists = path.exists();
+        let mut exists = path.exists();
+        if exists && !resume && holds_no_measurement(path)? {
+            // A campaign that stopped before its first measurement (a bad
+            // input, say) has nothing to resume: start it again.
+            std::fs::remove_file(path).map_err(|e| Error::io(path, e))?;
+            exists = false;
+        }
         if exists && !resume {
             return Err(Error::Other(format!(
                 "{}: a checkpoint of an earlier campaign exists: pass --resume to continue it, \
@@ -212,6 +218,12 @@ pub fn fingerprint(
         screen.1
     );
     crate::facility::lut::sha256_hex(canon.as_bytes())
+}
+
+/// True when the checkpoint at `path` holds at most its header line.
+fn holds_no_measurement(path: &Path) -> Result<bool> {
+    let text = crate::infile::read_text_bounded(path, crate::infile::TABLE_LIMIT)?;
+    Ok(text.lines().filter(|l| !l.trim().is_empty()).count() <= 1)
 }
 
 #[cfg(test)]

@@ -50,6 +50,9 @@ pub struct CalibrateArgs {
     /// Continue the campaign recorded in the output directory's checkpoint.
     #[arg(long)]
     pub resume: bool,
+    /// The files `flat` (geometry) and `verify` (LUT, flat field) use.
+    #[command(flatten)]
+    pub calibration: super::CalibrationFiles,
 }
 
 /// The instruments of one campaign.
@@ -139,7 +142,7 @@ fn dark_frame(cfg: &CalibrateConfig, rig: &mut Rig) -> Result<Option<Vec<f32>>> 
 
 /// `optistim calibrate`.
 pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
-    let fac = FacilityConfig::load(&args.facility)?;
+    let fac = args.calibration.load_facility(&args.facility)?;
     let bits = fac.drive.bits;
     let mut cfg = CalibrateConfig::load(&args.facility, bits)?;
     if let Some(out) = &args.out {
@@ -282,7 +285,7 @@ fn run_flat(
 ) -> Result<()> {
     let screen = fac.screen_size();
     let gpath = fac.calibration.geometry.as_ref().context(
-        "calibration.geometry: missing; run `optistim calibrate geometric` first and set it",
+        "calibration.geometry: missing; run `optistim calibrate geometric` first and set it, or give --geometry",
     )?;
     let geometry = GeometryCalibration::load(gpath, screen)?;
     let k = intrinsics(cfg, sim)?;
