@@ -33,6 +33,7 @@
 //! temporal = true
 //! seed = 1
 //! bits = 8                    # 8 or 10
+//! sub_bands = 1               # renders per frame of a spectral body (1–16)
 //!
 //! [frame_id]                  # optional section; defaults shown
 //! enabled = true
@@ -203,10 +204,20 @@ pub struct DriveConfig {
     /// Bits per channel (8 or 10).
     #[serde(default = "default_bits")]
     pub bits: u32,
+    /// Renders per frame of a spectral body, each over an equal part of
+    /// the camera's band, weighted by its share of the camera's electrons
+    /// (1: one render at the electron-weighted wavelength). Ignored for a
+    /// spectrally flat body.
+    #[serde(default = "default_sub_bands")]
+    pub sub_bands: usize,
 }
 
 fn default_bits() -> u32 {
     8
+}
+
+fn default_sub_bands() -> usize {
+    1
 }
 
 impl DriveConfig {
@@ -504,6 +515,12 @@ impl FacilityConfig {
                 format!("must be 8 or 10, found {}", d.bits),
             ));
         }
+        if !(1..=16).contains(&d.sub_bands) {
+            return Err(Error::invalid(
+                "drive.sub_bands",
+                format!("must be 1 to 16, found {}", d.sub_bands),
+            ));
+        }
         let f = &self.frame_id;
         if !(8..=32).contains(&f.bits) {
             return Err(Error::invalid(
@@ -663,6 +680,14 @@ state_timeout = 0.25
                 "drive.scale_k",
             ),
             (GOOD.replace("bits = 8", "bits = 12"), "drive.bits"),
+            (
+                GOOD.replace("bits = 8", "bits = 8\nsub_bands = 0"),
+                "drive.sub_bands",
+            ),
+            (
+                GOOD.replace("bits = 8", "bits = 8\nsub_bands = 17"),
+                "drive.sub_bands",
+            ),
             (
                 GOOD.replace("dither = \"blue_noise\"", "dither = \"floyd\""),
                 "dither",

@@ -98,12 +98,11 @@ pub struct ScreenModel {
     /// Screen pixels per rendered pixel along each axis (`screen.render_block`).
     block: usize,
     solid_angle: Vec<f32>,
-    band_irradiance_1au: f64,
-    /// The body's model at the band's response-weighted wavelength (one
-    /// render per frame; a spectral body is not split into sub-bands here).
-    model: Reflectance,
-    albedo: Option<f64>,
-    map_scale: f64,
+    /// What one frame renders: one band, or `drive.sub_bands` parts of the
+    /// camera's band for a spectral body.
+    bands: Vec<ScreenBand>,
+    /// Σ over sub-bands of weight × flux, over the ROI (sub-bands > 1).
+    accumulated: Vec<f64>,
     screen: (usize, usize),
     rotation: f64,
     warp: Option<PreWarp>,
@@ -111,6 +110,65 @@ pub struct ScreenModel {
     /// ideal grid of the pre-warp, or a grid of blocks.
     ideal_target: Vec<f32>,
     roi_target: Vec<f32>,
+}
+
+/// One render of a frame: the body's model in a part of the camera's band,
+/// and the weight that turns its flux per unit irradiance into
+/// camera-effective radiance.
+struct ScreenBand {
+    model: Reflectance,
+    albedo: Option<f64>,
+    map_scale: f64,
+    /// Band solar irradiance at 1 au × this part's share of the camera's
+    /// electrons [W m⁻²].
+    weight: f64,
+}
+
+/// The renders of one frame. A spectrally flat body, or `sub_bands` 1: one
+/// render at the camera's electron-weighted wavelength (exact for a
+/// reflectance linear across the band). Otherwise `sub_bands` equal parts,
+/// each at its own centroid, weighted by its share of the electrons: the
+/// camera-effective radiance L_eff = E_band Σ_k (e_k / e) f_k.
+fn screen_bands(scene: &Scene, sub_bands: usize) -> Vec<ScreenBand> {
+    let cam = &scene.camera;
+    let whole = band_integrals(
+        &scene.sun,
+        &cam.quantum_efficiency,
+        &cam.transmission,
+        cam.band,
+        1,
+    );
+    let e_band = whole[0].irradiance_1au;
+    let band = |wavelength: f64, weight: f64| {
+        let model = scene.body.reflectance.at_wavelength(wavelength);
+        let b = band_model(&scene.body, &model, wavelength);
+        let (albedo, map_scale) = (b.albedo, b.map_scale);
+        ScreenBand {
+            model,
+            albedo,
+            map_scale,
+            weight,
+        }
+    };
+    if scene.body.is_spectrally_flat() || sub_bands <= 1 {
+        return vec![band(response_weighted_wavelength(scene), e_band)];
+    }
+    let parts = band_integrals(
+        &scene.sun,
+        &cam.quantum_efficiency,
+        &cam.transmission,
+        cam.band,
+        sub_bands,
+    );
+    let electrons: f64 = parts.iter().map(|p| p.electron_rate_1au).sum();
+    if electrons <= 0.0 {
+        return vec![band(response_weighted_wavelength(scene), e_band)];
+    }
+    parts
+        .iter()
+        .filter(|p| p.electron_rate_1au > 0.0)
+        .map(|p| band(p.centroid, e_band * p.electron_rate_1au / electrons))
+        .collect()
 }
 
 /// The camera's electron-weighted mean wavelength over its band [m]: where
@@ -271,31 +329,17 @@ impl ScreenModel {
         }
         let renderer = Renderer::new(pin.clone());
         let solid_angle = pin.solid_angle_table();
-        let cam = &scene.camera;
-        let bands = band_integrals(
-            &scene.sun,
-            &cam.quantum_efficiency,
-            &cam.transmission,
-            cam.band,
-            1,
-        );
         // Build the albedo map's summed-area table and levels now, not in frame 0.
         if let Some(map) = &scene.body.albedo_map {
             map.box_average(0.0, 0.0, 1.0, 1.0);
             map.sample_stretched(0.0, 0.0, 4.0);
         }
-        let wavelength = response_weighted_wavelength(scene);
-        let model = scene.body.reflectance.at_wavelength(wavelength);
-        let band = band_model(&scene.body, &model, wavelength);
-        let (albedo, map_scale) = (band.albedo, band.map_scale);
         ScreenModel {
             renderer,
             block,
             solid_angle,
-            band_irradiance_1au: bands[0].irradiance_1au,
-            model,
-            albedo,
-            map_scale,
+            bands: screen_bands(scene, config.drive.sub_bands),
+            accumulated: Vec::new(),
             screen: config.screen_size(),
             rotation: if warp.is_some() {
                 0.0
@@ -321,31 +365,36 @@ impl ScreenModel {
         let mut st = *state;
         // The screen's x axis is turned by `rotation` in the camera frame.
         st.camera_attitude = state.camera_attitude * DQuat::from_rotation_z(self.rotation);
-        let band = BandModel {
-            model: Some(&self.model),
-            albedo: self.albedo,
-            map_scale: self.map_scale,
-        };
-        let stats = self
-            .renderer
-            .render_flux_band(&scene.body, &st, &scene.render, &band);
-        let r = stats.roi;
+        let r = self.render_bands(scene, &st);
         let w = self.renderer.camera().width;
-        let flux = self.renderer.flux();
         let out = if self.warp.is_some() || self.block > 1 {
             &mut self.ideal_target
         } else {
             &mut self.roi_target
         };
         out.clear();
-        for row in r.y0..r.y1 {
-            let k = row * w;
-            out.extend(
-                flux[k + r.x0..k + r.x1]
-                    .iter()
-                    .zip(&self.solid_angle[k + r.x0..k + r.x1])
-                    .map(|(&f, &o)| (self.band_irradiance_1au * f as f64 / o as f64) as f32),
-            );
+        if let [one] = self.bands.as_slice() {
+            let flux = self.renderer.flux();
+            for row in r.y0..r.y1 {
+                let k = row * w;
+                out.extend(
+                    flux[k + r.x0..k + r.x1]
+                        .iter()
+                        .zip(&self.solid_angle[k + r.x0..k + r.x1])
+                        .map(|(&f, &o)| (one.weight * f as f64 / o as f64) as f32),
+                );
+            }
+        } else {
+            let mut acc = self.accumulated.iter();
+            for row in r.y0..r.y1 {
+                let k = row * w;
+                out.extend(
+                    self.solid_angle[k + r.x0..k + r.x1]
+                        .iter()
+                        .zip(acc.by_ref())
+                        .map(|(&o, &f)| (f / o as f64) as f32),
+                );
+            }
         }
         let ideal = Roi::new(r.x0, r.y0, r.width(), r.height());
         match &mut self.warp {
@@ -361,6 +410,38 @@ impl ScreenModel {
                 &mut self.roi_target,
             )),
         }
+    }
+
+    /// Renders every band of the frame; with several, sums weight × flux
+    /// over the ROI into `accumulated`. Returns the ROI (on the render grid).
+    fn render_bands(&mut self, scene: &Scene, st: &State) -> crate::render::caps::Rect {
+        let w = self.renderer.camera().width;
+        let mut roi = None;
+        self.accumulated.clear();
+        for (i, b) in self.bands.iter().enumerate() {
+            let band = BandModel {
+                model: Some(&b.model),
+                albedo: b.albedo,
+                map_scale: b.map_scale,
+            };
+            let stats = self
+                .renderer
+                .render_flux_band(&scene.body, st, &scene.render, &band);
+            let r = *roi.get_or_insert(stats.roi);
+            if self.bands.len() == 1 {
+                break;
+            }
+            let flux = self.renderer.flux();
+            let rows = (r.y0..r.y1).flat_map(|row| &flux[row * w + r.x0..row * w + r.x1]);
+            if i == 0 {
+                self.accumulated.extend(rows.map(|&f| b.weight * f as f64));
+            } else {
+                for (a, &f) in self.accumulated.iter_mut().zip(rows) {
+                    *a += b.weight * f as f64;
+                }
+            }
+        }
+        roi.expect("at least one band")
     }
 
     /// Screen radiance of the last [`render`](Self::render), row-major over
