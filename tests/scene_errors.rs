@@ -17,6 +17,15 @@ fn error_of(text: &str) -> String {
 fn each_malformed_scene_names_its_error() {
     let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 100.0).toml();
     assert!(Scene::from_toml(&good, Path::new("ok.toml")).is_ok());
+    for key in [
+        "pixel_pitch = 1e-5",
+        "exposure = 1e-3",
+        "f_number = 2.5",
+        "temperature = 5772.0",
+        "irradiance_1au = 1361.0",
+    ] {
+        assert!(good.contains(key), "the test scene changed: {key}");
+    }
     let cases: Vec<(&str, String, &str)> = vec![
         ("missing key", good.replace("f_number = 2.5\n", ""), "f_number"),
         ("wrong type", good.replace("radius = 1e3", "radius = \"big\""), "radius"),
@@ -39,6 +48,11 @@ fn each_malformed_scene_names_its_error() {
         ("texture samples 9", good.replace("[render]\n", "[render]\ntexture_samples = 9\n"), "render.texture_samples"),
         ("band in nm", good.replace("band = [450e-9, 820e-9]", "band = [450, 820]"), "camera.band"),
         ("camera inside body", good.replace("[state]\ncamera_position = [", "[state]\ncamera_position = [1.0, 0.0, 0.0]\nignored = ["), "ignored"),
+        ("pixel pitch 1e308", good.replace("pixel_pitch = 1e-5", "pixel_pitch = 1e308"), "camera.pixel_pitch"),
+        ("exposure 1e300", good.replace("exposure = 1e-3", "exposure = 1e300"), "camera.exposure"),
+        ("f-number 1e-300", good.replace("f_number = 2.5", "f_number = 1e-300"), "camera.f_number"),
+        ("blackbody at 1e-300 K", good.replace("temperature = 5772.0", "temperature = 1e-300"), "sun.temperature"),
+        ("irradiance 1e300", good.replace("irradiance_1au = 1361.0", "irradiance_1au = 1e300"), "sun.irradiance_1au"),
     ];
     for (what, text, needle) in cases {
         let e = error_of(&text);
@@ -232,4 +246,60 @@ fn a_map_claiming_a_huge_size_is_refused_before_decoding() {
         assert!(!err.contains('\n'), "{err}");
         println!("{err}");
     }
+}
+
+/// Scenes at the corners of every accepted range (pixel pitch, focal
+/// length, exposure, Sun temperature and irradiance) render to finite
+/// results or fail with an error: never a success with NaN.
+#[test]
+fn extreme_accepted_values_never_succeed_with_nan() {
+    let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 20.0).toml();
+    let mut cases = 0;
+    for pitch in ["1e-8", "0.1"] {
+        for exposure in ["1e-12", "1e6"] {
+            for temperature in ["1.0", "1e6"] {
+                for irradiance in ["1e-12", "1e12"] {
+                    let text = good
+                        .replace("pixel_pitch = 1e-5", &format!("pixel_pitch = {pitch}"))
+                        .replace("exposure = 1e-3", &format!("exposure = {exposure}"))
+                        .replace(
+                            "temperature = 5772.0",
+                            &format!("temperature = {temperature}"),
+                        )
+                        .replace(
+                            "irradiance_1au = 1361.0",
+                            &format!("irradiance_1au = {irradiance}"),
+                        );
+                    let Ok(scene) = Scene::from_toml(&text, Path::new("corner.toml")) else {
+                        continue;
+                    };
+                    let mut renderer =
+                        optistim::render::Renderer::new(scene.camera.pinhole.clone());
+                    let pixels = optistim::render::detector::PixelGeometry::new(&renderer);
+                    cases += 1;
+                    if let Ok(images) =
+                        optistim::render::detector::render_scene(&scene, &mut renderer, &pixels)
+                    {
+                        let s = &images.summary;
+                        for v in [
+                            s.irradiance_at_pupil_w_m2,
+                            s.total_electrons,
+                            s.effective_irradiance_at_pupil_w_m2,
+                        ] {
+                            assert!(
+                                v.is_finite(),
+                                "{pitch} {exposure} {temperature} {irradiance}: {v}"
+                            );
+                        }
+                        assert!(images
+                            .radiance
+                            .iter()
+                            .chain(&images.electrons)
+                            .all(|v| v.is_finite()));
+                    }
+                }
+            }
+        }
+    }
+    assert_eq!(cases, 16, "every corner is an accepted scene");
 }

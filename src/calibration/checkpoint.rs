@@ -57,7 +57,7 @@ impl Checkpoint {
         }
         let mut done = HashMap::new();
         if exists {
-            let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+            let text = crate::infile::read_text_bounded(path, crate::infile::TABLE_LIMIT)?;
             let keep = parse(path, &text, fingerprint, routine, &mut done)?;
             if keep < text.len() {
                 // Drop the torn tail so appends start on a line of their own.

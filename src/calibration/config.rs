@@ -250,7 +250,7 @@ impl CalibrateConfig {
     /// display of `bits` bits.
     pub fn load(path: impl AsRef<Path>, bits: u32) -> Result<CalibrateConfig> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::infile::read_text_bounded(path, crate::infile::CONFIG_LIMIT)?;
         let mut cfg = CalibrateConfig::parse(&text, path, bits)?;
         cfg.resolve_paths(path.parent().unwrap_or(Path::new("")));
         Ok(cfg)

@@ -150,7 +150,7 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
     }
     std::fs::create_dir_all(&cfg.out_dir)
         .with_context(|| format!("creating {}", cfg.out_dir.display()))?;
-    let text = std::fs::read_to_string(&args.facility)?;
+    let text = optistim::infile::read_text_bounded(&args.facility, optistim::infile::CONFIG_LIMIT)?;
     let table = calibrate_table(&text, &args.facility)?;
     let name = match args.routine {
         Routine::Radiometric => radiometric::ROUTINE,
@@ -351,12 +351,13 @@ fn run_verify(
         None => None,
     };
     let rpath = cfg.out_dir.join("radiometric_report.json");
-    let text = std::fs::read_to_string(&rpath).with_context(|| {
-        format!(
-            "{}: verify needs the radiometric calibration's report (its camera scale)",
-            rpath.display()
-        )
-    })?;
+    let text = optistim::infile::read_text_bounded(&rpath, optistim::infile::CONFIG_LIMIT)
+        .with_context(|| {
+            format!(
+                "{}: verify needs the radiometric calibration's report (its camera scale)",
+                rpath.display()
+            )
+        })?;
     let rep: radiometric::Report =
         serde_json::from_str(&text).with_context(|| format!("{}", rpath.display()))?;
     if !(rep.scale.is_finite() && rep.scale > 0.0) {

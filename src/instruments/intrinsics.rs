@@ -59,7 +59,7 @@ impl CameraIntrinsics {
     /// Reads and validates a TOML (or `.json`) intrinsics file; errors name
     /// the file and the key.
     pub fn load(path: &Path) -> Result<CameraIntrinsics> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::infile::read_text_bounded(path, crate::infile::CONFIG_LIMIT)?;
         let json = path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("json"));

@@ -55,7 +55,7 @@ impl Table {
     /// Read a two-column CSV (`wavelength_nm, value`); a non-numeric first
     /// line is a header. Errors name the file and line.
     pub fn from_csv(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::infile::read_text_bounded(path, crate::infile::TABLE_LIMIT)?;
         let mut wavelengths = Vec::new();
         let mut values = Vec::new();
         for (index, line) in text.lines().enumerate() {
@@ -189,11 +189,19 @@ pub enum SolarSpectrum {
 impl SolarSpectrum {
     /// A blackbody spectrum.
     pub fn blackbody(temperature: f64, irradiance_1au: f64) -> Result<Self> {
-        if !(temperature.is_finite() && temperature > 0.0) {
-            return Err(Error::invalid("sun.temperature", "must be > 0 K"));
+        // Below ~1 K the Planck exponent overflows in any optical band;
+        // above 1e6 K nothing is a sun.
+        if !(temperature.is_finite() && (1.0..=1e6).contains(&temperature)) {
+            return Err(Error::invalid(
+                "sun.temperature",
+                format!("must be within [1, 1e6] K, got {temperature:e}"),
+            ));
         }
-        if !(irradiance_1au.is_finite() && irradiance_1au > 0.0) {
-            return Err(Error::invalid("sun.irradiance_1au", "must be > 0"));
+        if !(irradiance_1au.is_finite() && (1e-12..=1e12).contains(&irradiance_1au)) {
+            return Err(Error::invalid(
+                "sun.irradiance_1au",
+                format!("must be within [1e-12, 1e12] W m-2, got {irradiance_1au:e}"),
+            ));
         }
         Ok(SolarSpectrum::Blackbody {
             temperature,
@@ -210,13 +218,22 @@ impl SolarSpectrum {
             *v *= 1e9; // per nm -> per m
         }
         if let Some(total) = irradiance_1au {
-            if !(total.is_finite() && total > 0.0) {
-                return Err(Error::invalid("sun.irradiance_1au", "must be > 0"));
+            if !(total.is_finite() && (1e-12..=1e12).contains(&total)) {
+                return Err(Error::invalid(
+                    "sun.irradiance_1au",
+                    format!("must be within [1e-12, 1e12] W m-2, got {total:e}"),
+                ));
             }
             let lo = table.wavelengths[0];
             let hi = *table.wavelengths.last().unwrap();
             let have = integrate(lo, hi, &table.wavelengths, |l| table.eval(l));
             let scale = total / have;
+            if !(have > 0.0 && scale.is_finite()) {
+                return Err(Error::parse(
+                    path,
+                    format!("integrates to {have:e} W m-2: cannot be scaled to sun.irradiance_1au"),
+                ));
+            }
             for v in &mut table.values {
                 *v *= scale;
             }

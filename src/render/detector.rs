@@ -220,7 +220,7 @@ pub fn render_scene(
     } else {
         0.0
     };
-    Ok(SceneImages {
+    let images = SceneImages {
         radiance,
         radiance_effective,
         electrons,
@@ -241,5 +241,51 @@ pub fn render_scene(
             apparent_radius_deg: apparent.to_degrees(),
             apparent_radius_px: apparent.tan() * pin.fx,
         },
-    })
+    };
+    images.check_finite()?;
+    Ok(images)
+}
+
+impl SceneImages {
+    /// A render whose results are not all finite is an error, never a
+    /// success with NaN: extreme but finite inputs can overflow a product.
+    fn check_finite(&self) -> Result<()> {
+        let s = &self.summary;
+        let scalars = [
+            ("irradiance_at_pupil_w_m2", s.irradiance_at_pupil_w_m2),
+            ("irradiance_all_caps_w_m2", s.irradiance_all_caps_w_m2),
+            (
+                "effective_irradiance_at_pupil_w_m2",
+                s.effective_irradiance_at_pupil_w_m2,
+            ),
+            (
+                "response_weighted_irradiance_w_m2_nm",
+                s.response_weighted_irradiance_w_m2_nm,
+            ),
+            ("total_electrons", s.total_electrons),
+            ("band_irradiance_1au_w_m2", s.band_irradiance_1au_w_m2),
+            ("apparent_radius_px", s.apparent_radius_px),
+        ];
+        let images = [
+            ("radiance", &self.radiance),
+            ("camera-effective radiance", &self.radiance_effective),
+            ("electrons", &self.electrons),
+        ];
+        let bad = scalars
+            .iter()
+            .find(|(_, v)| !v.is_finite())
+            .map(|(name, _)| *name)
+            .or_else(|| {
+                images
+                    .iter()
+                    .find(|(_, img)| img.iter().any(|v| !v.is_finite()))
+                    .map(|(name, _)| *name)
+            });
+        match bad {
+            Some(name) => Err(Error::Other(format!(
+                "the render's {name} is not finite: the scene's values overflow (check the camera, Sun and body values)"
+            ))),
+            None => Ok(()),
+        }
+    }
 }

@@ -396,6 +396,19 @@ fn positive(value: f64, field: &str) -> Result<f64> {
     }
 }
 
+/// `value` within [lo, hi] (a physical range: beyond it products overflow
+/// or underflow into NaN long before any real instrument is described).
+fn within(value: f64, lo: f64, hi: f64, field: &str) -> Result<f64> {
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        Ok(value)
+    } else {
+        Err(Error::invalid(
+            field,
+            format!("must be within [{lo:e}, {hi:e}], got {value:e}"),
+        ))
+    }
+}
+
 fn vector(v: [f64; 3], field: &str) -> Result<DVec3> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(DVec3::from_array(v))
@@ -408,7 +421,7 @@ impl Scene {
     /// Read and check a scene file. Relative paths inside it resolve
     /// against the file's directory.
     pub fn from_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::infile::read_text_bounded(path, crate::infile::CONFIG_LIMIT)?;
         Self::from_toml(&text, path)
     }
 
@@ -431,8 +444,7 @@ impl Scene {
         let file: SceneFileBodyRef =
             toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
         let body_path = resolve(base, &file.body.file);
-        let body_text =
-            std::fs::read_to_string(&body_path).map_err(|e| Error::io(&body_path, e))?;
+        let body_text = crate::infile::read_text_bounded(&body_path, crate::infile::CONFIG_LIMIT)?;
         let body: BodyFileOnly =
             toml::from_str(&body_text).map_err(|e| Error::parse(&body_path, e.to_string()))?;
         let body_base = body_path.parent().unwrap_or(Path::new("."));
@@ -554,7 +566,7 @@ impl Body {
     /// Read a body file (`[body]` table, as `configs/bodies/moon.toml`);
     /// errors name the file.
     pub fn from_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::infile::read_text_bounded(path, crate::infile::CONFIG_LIMIT)?;
         let file: BodyFileOnly =
             toml::from_str(&text).map_err(|e| Error::parse(path, e.to_string()))?;
         body_from(&file.body, path.parent().unwrap_or(Path::new(".")))
@@ -614,9 +626,9 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
             "must be between 1 and 65536 px",
         ));
     }
-    let pitch = positive(c.pixel_pitch, "camera.pixel_pitch")?;
+    let pitch = within(c.pixel_pitch, 1e-8, 0.1, "camera.pixel_pitch")?;
     let focal_length = match (c.focal_length, c.fov_deg) {
-        (Some(f), None) => positive(f, "camera.focal_length")?,
+        (Some(f), None) => within(f, 1e-5, 1e3, "camera.focal_length")?,
         (None, Some(fov)) => {
             if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
                 return Err(Error::invalid("camera.fov_deg", "must be in (0, 180)"));
@@ -642,9 +654,9 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
     if !(cx.is_finite() && cy.is_finite()) {
         return Err(Error::invalid("camera.principal_point", "not finite"));
     }
-    let f_number = positive(c.f_number, "camera.f_number")?;
-    let exposure = positive(c.exposure, "camera.exposure")?;
-    let full_well = positive(c.full_well, "camera.full_well")?;
+    let f_number = within(c.f_number, 0.1, 1e4, "camera.f_number")?;
+    let exposure = within(c.exposure, 1e-12, 1e6, "camera.exposure")?;
+    let full_well = within(c.full_well, 1.0, 1e30, "camera.full_well")?;
     if c.bits == 0 || c.bits > 32 {
         return Err(Error::invalid("camera.bits", "must be 1..=32"));
     }

@@ -479,7 +479,7 @@ impl SimFacilityConfig {
     /// Reads, checks and resolves relative paths against the file's folder.
     pub fn load(path: impl AsRef<Path>) -> Result<SimFacilityConfig> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::infile::read_text_bounded(path, crate::infile::CONFIG_LIMIT)?;
         let mut cfg = SimFacilityConfig::parse(&text, path)?;
         cfg.resolve_paths(path.parent().unwrap_or(Path::new("")));
         Ok(cfg)
