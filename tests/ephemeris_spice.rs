@@ -188,3 +188,148 @@ fn bad_kernel_files_are_named_errors() {
         );
     }
 }
+
+// ------------------------------------------------------------ scene files
+
+const SCENE_HEAD: &str = r#"[camera]
+resolution = [64, 48]
+pixel_pitch = 13.3e-6
+fov_deg = 6.0
+f_number = 2.5
+exposure = 2.0e-5
+full_well = 1.0e5
+bits = 12
+band = [450e-9, 820e-9]
+
+[sun]
+spectrum = "blackbody"
+temperature = 5772.0
+
+[body]
+radius = 1737.4e3
+reflectance = { model = "lambert", albedo = 0.12 }
+"#;
+
+/// A scene at `epoch` with the fetched kernels; `extra_state` lines go in `[state]`.
+fn epoch_scene(epoch: &str, extra_state: &str) -> String {
+    let k = kernel_dir();
+    let quoted = |s: &str| toml::Value::String(s.to_string()).to_string();
+    let kernels: Vec<String> = ephemeris::KERNEL_FILES
+        .iter()
+        .map(|f| quoted(&k.join(f).to_string_lossy()))
+        .collect();
+    format!(
+        "{SCENE_HEAD}\n[state]\nepoch = {}\ncamera_position = [0.0, 0.0, -8.0e7]\n\
+         camera_attitude = [1.0, 0.0, 0.0, 0.0]\n{extra_state}\n\
+         [ephemeris]\nkernels = [{}]\n",
+        quoted(epoch),
+        kernels.join(", "),
+    )
+}
+
+#[test]
+fn scene_epoch_gives_the_cspice_sun_and_moon_attitude() {
+    let Some(_) = spice() else { return };
+    let path = std::path::Path::new("epoch_scene.toml");
+    for r in reference().iter().filter(|r| r.epoch.starts_with("2004")) {
+        let text = epoch_scene(&r.epoch, "");
+        let scene = optistim::scene::Scene::from_toml(&text, path).unwrap();
+        let st = scene.state;
+        assert_eq!(st.body_position, DVec3::ZERO);
+        let sun_err = (st.sun_position - r.sun_wrt_moon_km * 1e3).length();
+        assert!(sun_err < 1.0, "{}: Sun off by {sun_err} m", r.epoch);
+        let body = DMat3::from_quat(st.body_attitude);
+        let d = rotation_angle_deg(body, r.me_to_j2000);
+        assert!(d < 1e-6, "{}: body attitude off by {d} deg", r.epoch);
+    }
+}
+
+#[test]
+fn scene_epoch_errors_name_the_file_and_key() {
+    let Some(_) = spice() else { return };
+    let path = std::path::Path::new("epoch_scene.toml");
+    let cases = [
+        (epoch_scene("2060-01-01T00:00:00", ""), "state.epoch"),
+        (epoch_scene("2004-13-01T00:00:00", ""), "state.epoch"),
+        (epoch_scene("JD 2451545.0 TDB", ""), "state.epoch"),
+        (
+            epoch_scene("2004-08-19T00:00:00", "sun_position = [1e11, 0.0, 0.0]"),
+            "state.sun_position",
+        ),
+        (
+            epoch_scene("2004-08-19T00:00:00", "")
+                .replace("camera_position = [0.0, 0.0, -8.0e7]\n", ""),
+            "state.camera_position",
+        ),
+        (
+            epoch_scene("2004-08-19T00:00:00", "")
+                .replace("[ephemeris]", "[ephemeris]\nobserver = { spk_id = -238 }"),
+            "state.camera_position",
+        ),
+        (
+            epoch_scene("2004-08-19T00:00:00", "")
+                .split("[ephemeris]")
+                .next()
+                .unwrap()
+                .to_string(),
+            "ephemeris",
+        ),
+    ];
+    for (text, key) in cases {
+        let e = optistim::scene::Scene::from_toml(&text, path)
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("epoch_scene.toml:"), "{e}");
+        assert!(e.contains(key), "expected `{key}` in: {e}");
+        assert!(!e.contains('\n'), "not one line: {e}");
+    }
+}
+
+#[test]
+fn scene_observer_from_an_spk_is_the_bodys_position() {
+    let Some(spice) = spice() else { return };
+    // The Earth (399) as the "spacecraft": camera = Earth relative to the Moon.
+    let r = &reference()[2];
+    let text = epoch_scene(&r.epoch, "")
+        .replace("camera_position = [0.0, 0.0, -8.0e7]\n", "")
+        .replace("[ephemeris]", "[ephemeris]\nobserver = { spk_id = 399 }");
+    let scene = optistim::scene::Scene::from_toml(&text, std::path::Path::new("s.toml")).unwrap();
+    let t = parse_epoch(&r.epoch, "t").unwrap();
+    let expected = -spice.moon_from_earth(t).unwrap();
+    assert!((scene.state.camera_position - expected).length() < 1e-3);
+    // And independently of anise: CSPICE's Moon wrt Earth (the epoch is
+    // after 1972 and before 2017, so the time scales agree to < 1 ms).
+    let err = (scene.state.camera_position + r.moon_wrt_earth_km * 1e3).length();
+    assert!(err < 5.0, "camera off by {err} m");
+}
+
+mod properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 64, .. ProptestConfig::default() })]
+
+        /// Any epoch text: a state or an error naming `state.epoch`, never a panic.
+        #[test]
+        fn epoch_key_is_ok_or_a_named_error(
+            epoch in prop_oneof![
+                "[0-9]{4}-[0-9]{2}-[0-9]{2}T[0-9]{2}:[0-9]{2}:[0-9]{2}(\\.[0-9]{1,12})?( UTC| TDB| TAI| XYZ)?",
+                "\\PC{0,40}",
+            ]
+        ) {
+            let parsed = parse_epoch(&epoch, "state.epoch");
+            if let Err(e) = &parsed {
+                prop_assert!(e.to_string().contains("state.epoch"), "{}", e);
+            }
+            if spice().is_none() {
+                return Ok(());
+            }
+            let text = epoch_scene(&epoch, "");
+            if let Err(e) = optistim::scene::Scene::from_toml(&text, std::path::Path::new("p.toml")) {
+                let m = e.to_string();
+                prop_assert!(m.starts_with("p.toml:") && !m.contains('\n'), "{}", m);
+            }
+        }
+    }
+}
