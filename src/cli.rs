@@ -475,9 +475,19 @@ pub fn run(args: &RunArgs) -> Result<()> {
 }
 
 /// `optistim validate amie`.
-pub fn validate_amie(img: &Path, model: &str, out: &Path, data: &Path) -> Result<()> {
+pub fn validate_amie(
+    img: &Path,
+    model: &str,
+    out: &Path,
+    data: &Path,
+    kernels: Option<&Path>,
+) -> Result<()> {
     use optistim::validate::compare;
-    let options = compare::ValidationOptions::new(data);
+    let mut options = compare::ValidationOptions::new(data);
+    if let Some(dir) = kernels {
+        print_ephemeris_difference(img, dir)?;
+        options.kernels = Some(dir.to_path_buf());
+    }
     let run = compare::run(img, model, &options)
         .with_context(|| format!("validating {} with {model}", img.display()))?;
     compare::write_outputs(&run, out).with_context(|| format!("writing {}", out.display()))?;
@@ -496,6 +506,25 @@ pub fn validate_amie(img: &Path, model: &str, out: &Path, data: &Path) -> Result
         r.total_signal_ratio,
         r.phase_derived_deg,
         r.phase_label_deg
+    );
+    Ok(())
+}
+
+/// Prints how far the analytic ephemerides are from the SPICE kernels at
+/// an AMIE image's epoch.
+fn print_ephemeris_difference(img: &Path, kernels: &Path) -> Result<()> {
+    use optistim::validate::{amie, ephem};
+    let spice = optistim::ephemeris::Spice::from_dir(kernels)?;
+    let scene = amie::load(img)?.scene;
+    let d = amie::ephemeris_difference(&scene, &ephem::Analytic, &spice)?;
+    println!(
+        "{} analytic - SPICE: Moon position {:.1} km, Sun direction {:.5} deg, \
+         Sun distance {:.0} km, Moon orientation {:.5} deg",
+        scene.label.product_id,
+        d.moon_position_km,
+        d.sun_direction_deg,
+        d.sun_distance_km,
+        d.moon_orientation_deg
     );
     Ok(())
 }

@@ -18,7 +18,8 @@
 
 use std::path::{Path, PathBuf};
 
-use anise::prelude::{Almanac, Epoch, Frame};
+pub use anise::prelude::Epoch;
+use anise::prelude::{Almanac, Frame};
 use glam::{DMat3, DVec3};
 
 use crate::error::{abbreviate, Error, Result};

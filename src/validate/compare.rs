@@ -93,6 +93,9 @@ pub struct ValidationOptions {
     pub earth_shadow: bool,
     /// Caps per pixel along each axis (`None`: renderer default).
     pub caps_per_pixel: Option<f64>,
+    /// Directory of SPICE kernels (`tools/fetch_kernels.sh`): Sun and Moon
+    /// attitude from them instead of the analytic ephemerides.
+    pub kernels: Option<PathBuf>,
 }
 
 impl ValidationOptions {
@@ -107,6 +110,7 @@ impl ValidationOptions {
             response: d.join("amie/qe_assumed.csv"),
             earth_shadow: true,
             caps_per_pixel: None,
+            kernels: None,
         }
     }
 }
@@ -530,7 +534,11 @@ pub fn run(
     options: &ValidationOptions,
 ) -> Result<ValidationRun> {
     let path = img_path.as_ref();
-    let obs = amie::load(path)?;
+    let mut obs = amie::load(path)?;
+    if let Some(dir) = &options.kernels {
+        let spice = crate::ephemeris::Spice::from_dir(dir)?;
+        obs.scene = amie::with_ephemeris(&obs.scene, &spice)?;
+    }
     let choice = model_choice(model)?;
     let ecl = if options.earth_shadow {
         eclipse(&obs)?
