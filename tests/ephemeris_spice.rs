@@ -9,6 +9,8 @@
 
 use std::path::PathBuf;
 
+mod common;
+
 use glam::{DMat3, DVec3};
 use optistim::ephemeris::{self, parse_epoch, Ephemeris, Spice};
 
@@ -331,5 +333,37 @@ mod properties {
                 prop_assert!(m.starts_with("p.toml:") && !m.contains('\n'), "{}", m);
             }
         }
+    }
+}
+
+// ------------------------------------------------------------ AMIE images
+
+#[test]
+fn amie_geometry_from_spice_matches_the_labels() {
+    use optistim::validate::{amie, ephem::Analytic};
+    let Some(spice) = spice() else { return };
+    for p in [common::IMG1, common::IMG2] {
+        let analytic = amie::load(p).unwrap().scene;
+        let s = amie::with_ephemeris(&analytic, &spice).unwrap();
+        let c = s.geometry_check();
+        let d = amie::ephemeris_difference(&analytic, &Analytic, &spice).unwrap();
+        eprintln!(
+            "{}: SPICE sub-solar {:.4} deg from label, solar distance {:.2} km from label; \
+             analytic - SPICE {d:?}",
+            s.label.product_id,
+            c.sub_solar_error_deg,
+            c.solar_distance_km - s.label.solar_distance_km,
+        );
+        // The labels were made with SPICE from a DE4xx ephemeris: distance to
+        // a few km, sub-solar point to the label's 0.01 deg rounding plus the
+        // labels' lunar frame (IAU_MOON, ~0.005 deg from ME).
+        assert!((c.solar_distance_km - s.label.solar_distance_km).abs() < 5.0);
+        assert!(c.sub_solar_error_deg < 0.02, "{}", c.sub_solar_error_deg);
+        // The analytic theories' documented accuracy (validate::ephem doc):
+        // Moon ~2000 km, Sun direction from the Moon < 0.003 deg + Moon
+        // error, IAU 2009 frame ~150 m on the surface (0.005 deg) from ME.
+        assert!(d.moon_position_km < 2500.0, "{d:?}");
+        assert!(d.sun_direction_deg < 0.01, "{d:?}");
+        assert!(d.moon_orientation_deg < 0.01, "{d:?}");
     }
 }
