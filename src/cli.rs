@@ -293,6 +293,10 @@ pub struct RunArgs {
     /// Replay this trajectory (default: the facility file's).
     #[arg(long, conflicts_with = "listen")]
     pub trajectory: Option<std::path::PathBuf>,
+    /// SPICE kernel directory (tools/fetch_kernels.sh) for a trajectory
+    /// with an `epoch` column (docs/FACILITY.md).
+    #[arg(long)]
+    pub kernels: Option<std::path::PathBuf>,
     /// Closed loop: receive states on udp://HOST:PORT.
     #[arg(long)]
     pub listen: Option<String>,
@@ -369,7 +373,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
             }
         }
         (None, Some(path), _) | (None, None, Some(path)) => {
-            StateSource::Replay(Trajectory::load(path)?)
+            StateSource::Replay(load_trajectory(path, args.kernels.as_deref())?)
         }
         (None, None, None) => anyhow::bail!(
             "no state source: give --trajectory or --listen, or set scenario.trajectory in {}",
@@ -527,4 +531,22 @@ fn print_ephemeris_difference(img: &Path, kernels: &Path) -> Result<()> {
         d.moon_orientation_deg
     );
     Ok(())
+}
+
+/// A trajectory file: by epoch (Sun and Moon from the kernels in
+/// `kernels`) when its header has an `epoch` column, else explicit states.
+fn load_trajectory(path: &Path, kernels: Option<&Path>) -> Result<Trajectory> {
+    use optistim::facility::epoch_trajectory;
+    let text = optistim::infile::read_text_bounded(path, optistim::infile::DATA_LIMIT)?;
+    if !epoch_trajectory::is_epoch_header(&text) {
+        return Ok(Trajectory::load(path)?);
+    }
+    let dir = kernels.with_context(|| {
+        format!(
+            "{}: a trajectory with an `epoch` column needs --kernels DIR",
+            path.display()
+        )
+    })?;
+    let spice = optistim::ephemeris::Spice::from_dir(dir)?;
+    Ok(epoch_trajectory::load(path, &spice)?)
 }

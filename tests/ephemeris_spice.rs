@@ -367,3 +367,123 @@ fn amie_geometry_from_spice_matches_the_labels() {
         assert!(d.moon_orientation_deg < 0.01, "{d:?}");
     }
 }
+
+// ------------------------------------------------------------ trajectories
+
+#[test]
+fn epoch_trajectory_takes_sun_and_moon_from_the_kernels() {
+    use optistim::facility::epoch_trajectory;
+    let Some(spice) = spice() else { return };
+    let refs = reference();
+    let (a, b) = (&refs[2], &refs[3]); // the two 2004 epochs (UTC)
+    let text = format!(
+        "# two states\ncam_qw,cam_qx,cam_qy,cam_qz,epoch,cam_x_km,cam_y_km,cam_z_km\n\
+         1,0,0,0,{},1000,-2000,300000\n\n0,1,0,0,{},-5e4,0,0\n",
+        a.epoch.trim_end_matches(" UTC"),
+        b.epoch
+    );
+    let path = std::path::Path::new("traj.csv");
+    assert!(epoch_trajectory::is_epoch_header(&text));
+    let traj = epoch_trajectory::parse(&text, path, &spice).unwrap();
+    assert_eq!(traj.states.len(), 2);
+    for (s, r) in traj.states.iter().zip([a, b]) {
+        let sun_err = (s.sun_position - r.sun_wrt_moon_km * 1e3).length();
+        assert!(sun_err < 1.0, "Sun off by {sun_err} m");
+        let d = rotation_angle_deg(DMat3::from_quat(s.body_attitude.unwrap()), r.me_to_j2000);
+        assert!(d < 1e-6, "{d} deg");
+        assert_eq!(s.body_position, Some(DVec3::ZERO));
+    }
+    let s0 = &traj.states[0];
+    assert_eq!(s0.t, 0.0);
+    assert_eq!(s0.camera_position, DVec3::new(1e6, -2e6, 3e8));
+    // t: TDB seconds between the epochs, as CSPICE's str2et gives them.
+    let dt = traj.states[1].t - (b.et_s - a.et_s);
+    assert!(dt.abs() < 1e-3, "{dt}");
+    assert!((traj.states[1].camera_attitude.x - 1.0).abs() < 1e-12);
+}
+
+#[test]
+fn epoch_trajectory_errors_name_file_line_and_column() {
+    use optistim::facility::epoch_trajectory;
+    let Some(spice) = spice() else { return };
+    let head = "epoch,cam_x_km,cam_y_km,cam_z_km,cam_qw,cam_qx,cam_qy,cam_qz\n";
+    let ok = "2004-08-19T00:00:00,0,0,-1e5,1,0,0,0\n";
+    let cases = [
+        (
+            format!("{head}{ok}2004-08-18T00:00:00,0,0,-1e5,1,0,0,0\n"),
+            "line 3: column `epoch`",
+        ),
+        (
+            format!("{head}2060-01-01T00:00:00,0,0,-1e5,1,0,0,0\n"),
+            "line 2: column `epoch`",
+        ),
+        (
+            format!("{head}2004-08-19,0,0,-1e5,1,0,0,0\n"),
+            "line 2: column `epoch`",
+        ),
+        (
+            format!("{head}{ok}2004-08-20T00:00:00,0,x,-1e5,1,0,0,0\n"),
+            "line 3: column `cam_y_km`",
+        ),
+        (
+            format!("{head}2004-08-19T00:00:00,0,0,-1e5,0,0,0,0\n"),
+            "line 2: column `cam_qw`",
+        ),
+        (
+            format!("{head}2004-08-19T00:00:00,0,0\n"),
+            "line 2: expected 8 fields",
+        ),
+        (
+            "epoch,cam_x_km\n".to_string(),
+            "line 1: missing required column `cam_y_km`",
+        ),
+        (
+            format!("{},sun_x\n", head.trim_end()),
+            "line 1: unknown column `sun_x`",
+        ),
+        (head.to_string(), "no states"),
+    ];
+    for (text, want) in cases {
+        let e = epoch_trajectory::parse(&text, std::path::Path::new("traj.csv"), &spice)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("traj.csv: ") && e.contains(want),
+            "expected `{want}` in: {e}"
+        );
+        assert!(!e.contains('\n'), "{e}");
+    }
+}
+
+mod trajectory_properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 128, .. ProptestConfig::default() })]
+
+        /// Any rows under a valid header: a trajectory or an error naming
+        /// the file, never a panic.
+        #[test]
+        fn epoch_rows_are_ok_or_named_errors(
+            rows in proptest::collection::vec(
+                prop_oneof![
+                    "20[0-4][0-9]-[01][0-9]-[0-3][0-9]T[0-2][0-9]:[0-5][0-9]:[0-5][0-9](,-?[0-9e.]{1,6}){7}",
+                    "[-0-9a-zT:., e]{0,60}",
+                ],
+                0..4,
+            )
+        ) {
+            use optistim::facility::epoch_trajectory;
+            let Some(spice) = spice() else { return Ok(()) };
+            let text = format!(
+                "epoch,cam_x_km,cam_y_km,cam_z_km,cam_qw,cam_qx,cam_qy,cam_qz\n{}\n",
+                rows.join("\n")
+            );
+            if let Err(e) = epoch_trajectory::parse(&text, std::path::Path::new("p.csv"), &spice) {
+                let m = e.to_string();
+                prop_assert!(m.starts_with("p.csv: ") && !m.contains('\n'), "{}", m);
+            }
+        }
+    }
+}
