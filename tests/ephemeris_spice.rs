@@ -170,7 +170,10 @@ fn bad_kernel_files_are_named_errors() {
     let dir = tempfile::tempdir().unwrap();
     let text = dir.path().join("naif.tls");
     std::fs::write(&text, "KPL/LSK\n\\begindata\n").unwrap();
-    let e = Spice::load(&[text.clone()]).err().unwrap().to_string();
+    let e = Spice::load(std::slice::from_ref(&text))
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("naif.tls") && e.contains("text kernel"), "{e}");
     let Some(_) = spice() else { return };
     // A real kernel cut short: an error naming the file, never a panic.
@@ -178,11 +181,10 @@ fn bad_kernel_files_are_named_errors() {
     for len in [8usize, 1024, 1500, 4096, whole.len() / 2] {
         let cut = dir.path().join(format!("cut{len}.bpc"));
         std::fs::write(&cut, &whole[..len]).unwrap();
-        let r = Spice::load(&[cut.clone()])
+        let r = Spice::load(std::slice::from_ref(&cut))
             .and_then(|s| s.moon_pa_to_j2000(parse_epoch("2004-08-19T00:00:00", "t").unwrap()));
         let e = r
-            .err()
-            .expect("a truncated kernel must not give a rotation")
+            .expect_err("a truncated kernel must not give a rotation")
             .to_string();
         assert!(
             e.contains(&format!("cut{len}")) || e.contains("frame"),
