@@ -353,8 +353,13 @@ pub fn earth_from_moon(obs: &AmieObservation) -> Result<(DVec3, String)> {
     }
 }
 
-fn eclipse(obs: &AmieObservation) -> Result<Option<EclipseReport>> {
-    let (earth, source) = earth_from_moon(obs)?;
+/// `spice_earth`: the Earth relative to the Moon from the kernels, used
+/// instead of the label's when given.
+fn eclipse(obs: &AmieObservation, spice_earth: Option<DVec3>) -> Result<Option<EclipseReport>> {
+    let (earth, source) = match spice_earth {
+        Some(e) => (e, "SPICE kernels (DE421)".to_string()),
+        None => earth_from_moon(obs)?,
+    };
     let sun = obs.scene.sun_position();
     // Shadow axis: from the Earth away from the Sun.
     let axis = (earth - sun).normalize();
@@ -535,13 +540,16 @@ pub fn run(
 ) -> Result<ValidationRun> {
     let path = img_path.as_ref();
     let mut obs = amie::load(path)?;
+    let mut spice_earth = None;
     if let Some(dir) = &options.kernels {
         let spice = crate::ephemeris::Spice::from_dir(dir)?;
         obs.scene = amie::with_ephemeris(&obs.scene, &spice)?;
+        let t = amie::epoch(&obs.scene)?;
+        spice_earth = Some(spice.position(crate::ephemeris::EARTH, crate::ephemeris::MOON, t)?);
     }
     let choice = model_choice(model)?;
     let ecl = if options.earth_shadow {
-        eclipse(&obs)?
+        eclipse(&obs, spice_earth)?
     } else {
         None
     };
