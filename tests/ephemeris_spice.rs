@@ -489,3 +489,19 @@ mod trajectory_properties {
         }
     }
 }
+
+#[test]
+fn the_epoch_example_scene_looks_at_the_moon() {
+    let Some(_) = spice() else { return };
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs/moon_epoch.toml");
+    let scene = optistim::scene::Scene::from_file(&path).unwrap();
+    let st = scene.state;
+    // The attitude in the file was computed with CSPICE (Moon wrt Earth,
+    // naif0011: 1 s off after 2017, ~1 km of lunar motion, 1.5e-4 deg).
+    let boresight = st.camera_attitude * DVec3::Z;
+    let to_moon = (st.body_position - st.camera_position).normalize();
+    let off = boresight.angle_between(to_moon).to_degrees();
+    assert!(off < 1e-3, "boresight {off} deg from the Moon's centre");
+    let range_km = (st.body_position - st.camera_position).length() / 1e3;
+    assert!((range_km - 399_781.07).abs() < 2.0, "{range_km}");
+}
