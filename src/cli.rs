@@ -332,6 +332,10 @@ pub struct RunArgs {
     /// Replay this trajectory (default: the facility file's).
     #[arg(long, conflicts_with = "listen")]
     pub trajectory: Option<std::path::PathBuf>,
+    /// SPICE kernel directory (tools/fetch_kernels.sh) for a trajectory
+    /// with an `epoch` column (docs/FACILITY.md).
+    #[arg(long)]
+    pub kernels: Option<std::path::PathBuf>,
     /// Closed loop: receive states on udp://HOST:PORT.
     #[arg(long)]
     pub listen: Option<String>,
@@ -408,7 +412,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
             }
         }
         (None, Some(path), _) | (None, None, Some(path)) => {
-            StateSource::Replay(Trajectory::load(path)?)
+            StateSource::Replay(load_trajectory(path, args.kernels.as_deref())?)
         }
         (None, None, None) => anyhow::bail!(
             "no state source: give --trajectory or --listen, or set scenario.trajectory in {}",
@@ -514,9 +518,19 @@ pub fn run(args: &RunArgs) -> Result<()> {
 }
 
 /// `optistim validate amie`.
-pub fn validate_amie(img: &Path, model: &str, out: &Path, data: &Path) -> Result<()> {
+pub fn validate_amie(
+    img: &Path,
+    model: &str,
+    out: &Path,
+    data: &Path,
+    kernels: Option<&Path>,
+) -> Result<()> {
     use optistim::validate::compare;
-    let options = compare::ValidationOptions::new(data);
+    let mut options = compare::ValidationOptions::new(data);
+    if let Some(dir) = kernels {
+        print_ephemeris_difference(img, dir)?;
+        options.kernels = Some(dir.to_path_buf());
+    }
     let run = compare::run(img, model, &options)
         .with_context(|| format!("validating {} with {model}", img.display()))?;
     compare::write_outputs(&run, out).with_context(|| format!("writing {}", out.display()))?;
@@ -537,4 +551,41 @@ pub fn validate_amie(img: &Path, model: &str, out: &Path, data: &Path) -> Result
         r.phase_label_deg
     );
     Ok(())
+}
+
+/// Prints how far the analytic ephemerides are from the SPICE kernels at
+/// an AMIE image's epoch.
+fn print_ephemeris_difference(img: &Path, kernels: &Path) -> Result<()> {
+    use optistim::validate::{amie, ephem};
+    let spice = optistim::ephemeris::Spice::from_dir(kernels)?;
+    let scene = amie::load(img)?.scene;
+    let d = amie::ephemeris_difference(&scene, &ephem::Analytic, &spice)?;
+    println!(
+        "{} analytic - SPICE: Moon position {:.1} km, Sun direction {:.5} deg, \
+         Sun distance {:.0} km, Moon orientation {:.5} deg",
+        scene.label.product_id,
+        d.moon_position_km,
+        d.sun_direction_deg,
+        d.sun_distance_km,
+        d.moon_orientation_deg
+    );
+    Ok(())
+}
+
+/// A trajectory file: by epoch (Sun and Moon from the kernels in
+/// `kernels`) when its header has an `epoch` column, else explicit states.
+fn load_trajectory(path: &Path, kernels: Option<&Path>) -> Result<Trajectory> {
+    use optistim::facility::epoch_trajectory;
+    let text = optistim::infile::read_text_bounded(path, optistim::infile::DATA_LIMIT)?;
+    if !epoch_trajectory::is_epoch_header(&text) {
+        return Ok(Trajectory::load(path)?);
+    }
+    let dir = kernels.with_context(|| {
+        format!(
+            "{}: a trajectory with an `epoch` column needs --kernels DIR",
+            path.display()
+        )
+    })?;
+    let spice = optistim::ephemeris::Spice::from_dir(dir)?;
+    Ok(epoch_trajectory::load(path, &spice)?)
 }

@@ -16,6 +16,7 @@ pub enum Target {
     FacilityToml,
     SceneToml,
     Trajectory,
+    EpochTrajectory,
     Lut,
     Geometry,
     Spectrum,
@@ -27,10 +28,11 @@ pub enum Target {
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 10] = [
+    pub const ALL: [Target; 11] = [
         Target::FacilityToml,
         Target::SceneToml,
         Target::Trajectory,
+        Target::EpochTrajectory,
         Target::Lut,
         Target::Geometry,
         Target::Spectrum,
@@ -46,6 +48,7 @@ impl Target {
             Target::FacilityToml => "facility_toml",
             Target::SceneToml => "scene_toml",
             Target::Trajectory => "trajectory_csv",
+            Target::EpochTrajectory => "epoch_trajectory_csv",
             Target::Lut => "lut_csv",
             Target::Geometry => "geometry_csv",
             Target::Spectrum => "spectrum_csv",
@@ -71,6 +74,7 @@ impl Target {
                 s(include_bytes!("../configs/moon.toml")),
             ],
             Target::Trajectory => vec![head(include_bytes!("../configs/moon_approach.csv"), 12)],
+            Target::EpochTrajectory => vec![s(EPOCH_TRAJECTORY_SEED.as_bytes())],
             Target::Lut => vec![s(include_bytes!("../calib/example_lut.csv"))],
             Target::Geometry => vec![s(GEOMETRY_SEED.as_bytes())],
             Target::Spectrum => vec![head(include_bytes!("../data/solar/astm_e490_am0.csv"), 40)],
@@ -97,6 +101,11 @@ impl Target {
                 crate::scene::Scene::from_toml(&text, &scratch.join("scene.toml")).is_ok()
             }
             Target::Trajectory => f::trajectory::Trajectory::parse(&text, name).is_ok(),
+            // The analytic ephemeris: the parser's checks, no kernels needed.
+            Target::EpochTrajectory => {
+                let eph = crate::validate::ephem::Analytic;
+                f::epoch_trajectory::parse(&text, name, &eph).is_ok()
+            }
             Target::Lut => f::lut::DisplayLut::from_csv_bytes(bytes, name, 8).is_ok(),
             Target::Geometry => {
                 f::geometry::GeometryCalibration::from_csv_bytes(bytes, name, (64, 32)).is_ok()
@@ -142,6 +151,12 @@ camera_position = [0.0, 0.0, -8.2963e7]
 camera_attitude = [1.0, 0.0, 0.0, 0.0]
 sun_position = [7.48e10, 0.0, -1.29557e11]
 "#;
+
+/// Two states of an epoch trajectory.
+const EPOCH_TRAJECTORY_SEED: &str =
+    "epoch,cam_x_km,cam_y_km,cam_z_km,cam_qw,cam_qx,cam_qy,cam_qz\n\
+2004-08-19T23:42:43.134,1000,-2000,300000,1,0,0,0\n\
+2004-08-19T23:45:43.134 TDB,1000,-2000,299000,0.5,0.5,0.5,-0.5\n";
 
 /// A 3×3-node geometry lattice over a 64×32 screen.
 const GEOMETRY_SEED: &str = "u_px,v_px,tan_x,tan_y\n\

@@ -8,6 +8,7 @@
 //! | module | owns |
 //! |---|---|
 //! | [`scene`] | what is out there: camera, body, Sun, poses; the TOML scene file |
+//! | [`ephemeris`] | epochs → Sun and Moon positions and the Moon's orientation, from SPICE kernels |
 //! | [`radiometry`] | how light is made and reflected: solar spectra, reflectance models, band integrals |
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
@@ -29,6 +30,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod calibration;
+pub mod ephemeris;
 pub mod error;
 pub mod facility;
 pub mod figures;

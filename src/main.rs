@@ -92,6 +92,11 @@ enum ValidateCommand {
         /// Data directory (maps, solar spectrum, assumed AMIE response).
         #[arg(long, default_value = "data")]
         data: PathBuf,
+        /// SPICE kernel directory (tools/fetch_kernels.sh): Sun and Moon
+        /// orientation from DE421 and the lunar BPC instead of the analytic
+        /// ephemerides; also prints how far the two differ.
+        #[arg(long)]
+        kernels: Option<PathBuf>,
     },
 }
 
@@ -142,7 +147,8 @@ fn main() -> ExitCode {
             model,
             out,
             data,
-        }) => cli::validate_amie(&img, &model, &out, &data),
+            kernels,
+        }) => cli::validate_amie(&img, &model, &out, &data, kernels.as_deref()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,7 @@
 //! | module | owns |
 //! |---|---|
 //! | [`trajectory`] | the [`State`](trajectory::State) type and open-loop CSV trajectories |
+//! | [`epoch_trajectory`] | trajectories given by epoch, Sun and Moon from SPICE kernels |
 //! | [`udp`] | closed-loop states over UDP (newest wins, stale/malformed counted) |
 //! | [`lut`] | display radiance LUT (PCHIP, inverse, SHA-256) and flat field |
 //! | [`geometry`] | geometric calibration file (screen pixel → camera direction) and the pre-warp |
@@ -25,6 +26,7 @@ pub mod config;
 pub mod display;
 pub mod dither;
 pub mod driver;
+pub mod epoch_trajectory;
 pub mod frame_id;
 pub mod geometry;
 pub mod log;

@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 use glam::{DQuat, DVec3};
 use serde::Deserialize;
 
+use crate::ephemeris::{self, Ephemeris, Spice};
 use crate::error::{Error, Result};
 use crate::radiometry::reflectance::{Reflectance, ReflectanceConfig};
 use crate::radiometry::spectrum::{Response, SolarSpectrum, Table};
@@ -227,6 +228,7 @@ struct SceneFile {
     sun: SunFile,
     body: BodyFile,
     state: StateFile,
+    ephemeris: Option<EphemerisFile>,
     #[serde(default)]
     render: RenderSettings,
 }
@@ -331,6 +333,7 @@ struct SceneFileBodyRef {
     sun: SunFile,
     body: BodyRef,
     state: StateFile,
+    ephemeris: Option<EphemerisFile>,
     #[serde(default)]
     render: RenderSettings,
 }
@@ -371,18 +374,122 @@ struct NormalMapFile {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct StateFile {
-    #[serde(default)]
-    body_position: [f64; 3],
-    #[serde(default = "identity_quaternion")]
-    body_attitude: [f64; 4],
-    camera_position: [f64; 3],
+    body_position: Option<[f64; 3]>,
+    body_attitude: Option<[f64; 4]>,
+    camera_position: Option<[f64; 3]>,
     camera_attitude: [f64; 4],
-    sun_position: [f64; 3],
+    sun_position: Option<[f64; 3]>,
     occulter: Option<Occulter>,
+    /// Epoch text (UTC, or with a ` TDB` suffix): Sun and Moon attitude
+    /// then come from the `[ephemeris]` kernels.
+    epoch: Option<String>,
 }
 
 fn identity_quaternion() -> [f64; 4] {
     [1.0, 0.0, 0.0, 0.0]
+}
+
+/// A value that must be given, named in the error when it is not.
+fn required<T>(v: Option<T>, field: &str) -> Result<T> {
+    v.ok_or_else(|| Error::invalid(field, "required (no `state.epoch` given)"))
+}
+
+/// Poses from explicit positions: the path without an epoch.
+fn explicit_state(s: &StateFile) -> Result<State> {
+    Ok(State {
+        body_position: vector(s.body_position.unwrap_or_default(), "state.body_position")?,
+        body_attitude: quaternion(
+            s.body_attitude.unwrap_or_else(identity_quaternion),
+            "state.body_attitude",
+        )?,
+        camera_position: vector(
+            required(s.camera_position, "state.camera_position")?,
+            "state.camera_position",
+        )?,
+        camera_attitude: quaternion(s.camera_attitude, "state.camera_attitude")?,
+        sun_position: vector(
+            required(s.sun_position, "state.sun_position")?,
+            "state.sun_position",
+        )?,
+        occulter: s.occulter,
+    })
+}
+
+/// Poses at `state.epoch` from the kernels: world = J2000 axes with the
+/// Moon at the origin, so the body (the Moon) sits at the origin with its
+/// Mean Earth/polar-axis attitude and the Sun where the kernels put it.
+fn epoch_state(
+    s: &StateFile,
+    epoch: &str,
+    eph: Option<&EphemerisFile>,
+    base: &Path,
+) -> Result<State> {
+    let eph = eph.ok_or_else(|| {
+        Error::invalid(
+            "ephemeris",
+            "`state.epoch` needs an `[ephemeris]` table with `kernels`",
+        )
+    })?;
+    for (given, key) in [
+        (s.body_position.is_some(), "state.body_position"),
+        (s.body_attitude.is_some(), "state.body_attitude"),
+        (s.sun_position.is_some(), "state.sun_position"),
+    ] {
+        if given {
+            return Err(Error::invalid(
+                key,
+                "not allowed with `state.epoch` (the kernels give it)",
+            ));
+        }
+    }
+    let t = ephemeris::parse_epoch(epoch, "state.epoch")?;
+    if eph.kernels.is_empty() || eph.kernels.len() > 64 {
+        return Err(Error::invalid(
+            "ephemeris.kernels",
+            "give 1 to 64 kernel files",
+        ));
+    }
+    let paths: Vec<PathBuf> = eph.kernels.iter().map(|k| resolve(base, k)).collect();
+    let spice = Spice::load(&paths)?;
+    let at = |e: Error| Error::invalid("state.epoch", format!("`{epoch}`: {e}"));
+    let camera_position = match (s.camera_position, eph.observer) {
+        (Some(p), None) => vector(p, "state.camera_position")?,
+        (None, Some(o)) => spice
+            .position(o.spk_id, ephemeris::MOON, t)
+            .map_err(|e| Error::invalid("ephemeris.observer", e.to_string()))?,
+        _ => {
+            return Err(Error::invalid(
+                "state.camera_position",
+                "give exactly one of `state.camera_position` and `ephemeris.observer`",
+            ))
+        }
+    };
+    let body = DQuat::from_mat3(&spice.moon_to_j2000(t).map_err(at)?).normalize();
+    Ok(State {
+        body_position: DVec3::ZERO,
+        body_attitude: body,
+        camera_position,
+        camera_attitude: quaternion(s.camera_attitude, "state.camera_attitude")?,
+        sun_position: spice.sun_from_moon(t).map_err(at)?,
+        occulter: s.occulter,
+    })
+}
+
+/// `[ephemeris]`: the kernels an epoch is evaluated with.
+#[derive(Deserialize, Clone, Debug)]
+#[serde(deny_unknown_fields)]
+struct EphemerisFile {
+    /// SPK (`.bsp`) and binary PCK (`.bpc`) files.
+    kernels: Vec<PathBuf>,
+    /// The camera position from an SPK instead of `state.camera_position`.
+    observer: Option<ObserverFile>,
+}
+
+#[derive(Deserialize, Clone, Copy, Debug)]
+#[serde(deny_unknown_fields)]
+struct ObserverFile {
+    /// NAIF id of the spacecraft (or body) carrying the camera.
+    spk_id: i32,
 }
 
 fn positive(value: f64, field: &str) -> Result<f64> {
@@ -453,6 +560,7 @@ impl Scene {
             sun: file.sun,
             body: body.body,
             state: file.state,
+            ephemeris: file.ephemeris,
             render: file.render,
         };
         Self::build(scene, base, body_base).map_err(|e| match e {
@@ -481,13 +589,12 @@ impl Scene {
         let body = body_from(&file.body, body_base)?;
         let radius = body.radius;
         let s = &file.state;
-        let state = State {
-            body_position: vector(s.body_position, "state.body_position")?,
-            body_attitude: quaternion(s.body_attitude, "state.body_attitude")?,
-            camera_position: vector(s.camera_position, "state.camera_position")?,
-            camera_attitude: quaternion(s.camera_attitude, "state.camera_attitude")?,
-            sun_position: vector(s.sun_position, "state.sun_position")?,
-            occulter: s.occulter,
+        let state = match &s.epoch {
+            Some(epoch) => epoch_state(s, epoch, file.ephemeris.as_ref(), base)?,
+            None if file.ephemeris.is_some() => {
+                return Err(Error::invalid("ephemeris", "given without `state.epoch`"))
+            }
+            None => explicit_state(s)?,
         };
         state.check(radius, "state")?;
         file.render.check()?;

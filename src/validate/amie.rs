@@ -39,6 +39,7 @@ use glam::{DMat3, DQuat, DVec3};
 use super::ephem::{self, Utc};
 use super::pds3::{self, Label};
 use super::raster::Raster;
+use crate::ephemeris::{self, Ephemeris};
 use crate::error::{Error, Result};
 
 /// Whether the stored AMIE lines must be reversed to get the camera
@@ -645,4 +646,52 @@ impl AmieScene {
             label_center_point_offset_px: center_offset,
         }
     }
+}
+
+/// How far two ephemerides put the Moon, the Sun and the Moon's axes at an
+/// AMIE image's epoch.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct EphemerisDifference {
+    /// |Δ geocentric Moon|, km.
+    pub moon_position_km: f64,
+    /// Angle between the selenocentric Sun directions, degrees.
+    pub sun_direction_deg: f64,
+    /// |Δ Moon–Sun distance|, km.
+    pub sun_distance_km: f64,
+    /// Angle of the rotation between the two Moon body frames, degrees.
+    pub moon_orientation_deg: f64,
+}
+
+/// The label's `START_TIME` as an epoch (UTC).
+pub fn epoch(scene: &AmieScene) -> Result<ephemeris::Epoch> {
+    ephemeris::parse_epoch(&scene.label.start_time, "START_TIME")
+}
+
+/// `scene` with its Moon attitude and Sun from `eph` (the SPICE path: the
+/// Sun exactly where the kernels put it, no label distance needed).
+pub fn with_ephemeris(scene: &AmieScene, eph: &dyn Ephemeris) -> Result<AmieScene> {
+    let t = epoch(scene)?;
+    let mut out = scene.clone();
+    let body = DQuat::from_mat3(&eph.moon_to_j2000(t)?).normalize();
+    out.state.body_attitude = quat_wxyz(body);
+    out.state.sun_position = eph.sun_from_moon(t)?.to_array();
+    Ok(out)
+}
+
+/// Differences between ephemerides `a` and `b` at the scene's epoch.
+pub fn ephemeris_difference(
+    scene: &AmieScene,
+    a: &dyn Ephemeris,
+    b: &dyn Ephemeris,
+) -> Result<EphemerisDifference> {
+    let t = epoch(scene)?;
+    let (sa, sb) = (a.sun_from_moon(t)?, b.sun_from_moon(t)?);
+    let turn = a.moon_to_j2000(t)?.transpose() * b.moon_to_j2000(t)?;
+    let cos = ((turn.x_axis.x + turn.y_axis.y + turn.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+    Ok(EphemerisDifference {
+        moon_position_km: (a.moon_from_earth(t)? - b.moon_from_earth(t)?).length() / 1e3,
+        sun_direction_deg: sa.angle_between(sb).to_degrees(),
+        sun_distance_km: (sa.length() - sb.length()).abs() / 1e3,
+        moon_orientation_deg: cos.acos().to_degrees(),
+    })
 }

@@ -93,6 +93,9 @@ pub struct ValidationOptions {
     pub earth_shadow: bool,
     /// Caps per pixel along each axis (`None`: renderer default).
     pub caps_per_pixel: Option<f64>,
+    /// Directory of SPICE kernels (`tools/fetch_kernels.sh`): Sun and Moon
+    /// attitude from them instead of the analytic ephemerides.
+    pub kernels: Option<PathBuf>,
 }
 
 impl ValidationOptions {
@@ -107,6 +110,7 @@ impl ValidationOptions {
             response: d.join("amie/qe_assumed.csv"),
             earth_shadow: true,
             caps_per_pixel: None,
+            kernels: None,
         }
     }
 }
@@ -349,8 +353,13 @@ pub fn earth_from_moon(obs: &AmieObservation) -> Result<(DVec3, String)> {
     }
 }
 
-fn eclipse(obs: &AmieObservation) -> Result<Option<EclipseReport>> {
-    let (earth, source) = earth_from_moon(obs)?;
+/// `spice_earth`: the Earth relative to the Moon from the kernels, used
+/// instead of the label's when given.
+fn eclipse(obs: &AmieObservation, spice_earth: Option<DVec3>) -> Result<Option<EclipseReport>> {
+    let (earth, source) = match spice_earth {
+        Some(e) => (e, "SPICE kernels (DE421)".to_string()),
+        None => earth_from_moon(obs)?,
+    };
     let sun = obs.scene.sun_position();
     // Shadow axis: from the Earth away from the Sun.
     let axis = (earth - sun).normalize();
@@ -530,10 +539,17 @@ pub fn run(
     options: &ValidationOptions,
 ) -> Result<ValidationRun> {
     let path = img_path.as_ref();
-    let obs = amie::load(path)?;
+    let mut obs = amie::load(path)?;
+    let mut spice_earth = None;
+    if let Some(dir) = &options.kernels {
+        let spice = crate::ephemeris::Spice::from_dir(dir)?;
+        obs.scene = amie::with_ephemeris(&obs.scene, &spice)?;
+        let t = amie::epoch(&obs.scene)?;
+        spice_earth = Some(spice.position(crate::ephemeris::EARTH, crate::ephemeris::MOON, t)?);
+    }
     let choice = model_choice(model)?;
     let ecl = if options.earth_shadow {
-        eclipse(&obs)?
+        eclipse(&obs, spice_earth)?
     } else {
         None
     };

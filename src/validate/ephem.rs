@@ -24,6 +24,7 @@
 
 use glam::{DMat3, DVec3};
 
+use crate::ephemeris::{Ephemeris, Epoch};
 use crate::error::{Error, Result};
 
 /// Julian date of J2000.0 (2000-01-01T12:00 TT).
@@ -353,4 +354,26 @@ pub fn precession_mean_of_date_to_j2000(jd_tt: f64) -> DMat3 {
 /// (`tests/validate_pipeline.rs`), against ~900 km for the analytic Moon.
 pub fn earth_fixed_to_j2000(jd_utc: f64, jd_tt: f64) -> DMat3 {
     precession_mean_of_date_to_j2000(jd_tt) * DMat3::from_rotation_z(gmst_deg(jd_utc).to_radians())
+}
+
+/// The analytic theories above behind the [`Ephemeris`] seam, for
+/// comparison with the SPICE kernels (`crate::ephemeris::Spice`).
+pub struct Analytic;
+
+impl Ephemeris for Analytic {
+    fn name(&self) -> &'static str {
+        "analytic (Meeus Sun, Almanac Moon, IAU 2009 rotation)"
+    }
+
+    fn moon_from_earth(&self, t: Epoch) -> Result<DVec3> {
+        Ok(moon_geocentric_j2000(t.to_jde_tt_days()))
+    }
+
+    fn sun_from_moon(&self, t: Epoch) -> Result<DVec3> {
+        Ok(sun_from_moon_j2000(t.to_jde_tt_days()))
+    }
+
+    fn moon_to_j2000(&self, t: Epoch) -> Result<DMat3> {
+        Ok(moon_body_to_j2000(t.to_jde_tt_days()))
+    }
 }
