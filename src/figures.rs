@@ -143,10 +143,39 @@ fn span(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     }
 }
 
+/// Tick label of `v` on a linear axis spanning `span`: as many decimals
+/// as the ticks (about a tenth of the span) need.
+fn tick(v: f64, span: f64) -> String {
+    let d = if span.is_finite() && span > 0.0 {
+        (-(span / 10.0).log10()).ceil().clamp(0.0, 6.0) as usize
+    } else {
+        2
+    };
+    let t = format!("{v:.d$}");
+    // No "-0".
+    if t.trim_start_matches('-')
+        .chars()
+        .all(|c| c == '0' || c == '.')
+    {
+        t.trim_start_matches('-').to_string()
+    } else {
+        t
+    }
+}
+
+/// Tick label of `v` on a log axis.
+fn tick_log(v: f64) -> String {
+    if !(v > 0.0) || !(1e-3..1e5).contains(&v) {
+        return format!("{v:.0e}");
+    }
+    let d = (-v.log10().floor()).clamp(0.0, 3.0) as usize;
+    format!("{v:.d$}")
+}
+
 /// Draws one panel on `area`. A macro, because plotters' linear and log
 /// charts are different types with the same drawing calls.
 macro_rules! draw_panel {
-    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr) => {{
+    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr, $xf:expr, $yf:expr) => {{
         let mut builder = ChartBuilder::on($area);
         if let Some(c) = $caption {
             builder.caption(c, (FONT_NAME, 22));
@@ -161,6 +190,8 @@ macro_rules! draw_panel {
             .configure_mesh()
             .x_desc($x_label)
             .y_desc($panel.y_label.as_str())
+            .x_label_formatter($xf)
+            .y_label_formatter($yf)
             .label_style((FONT_NAME, 14))
             .axis_desc_style((FONT_NAME, 16))
             .draw()
@@ -212,7 +243,9 @@ fn panel_on(
         .flat_map(|s| finite_points(s, panel.log_y))
         .map(|p| p.1);
     let (y0, y1) = span(ys, panel.log_y);
+    let xf = |v: &f64| tick(*v, x.1 - x.0);
     if panel.log_y {
+        let yf = |v: &f64| tick_log(*v);
         draw_panel!(
             area,
             caption,
@@ -220,10 +253,23 @@ fn panel_on(
             (y0..y1).log_scale(),
             x_label,
             panel,
-            err
+            err,
+            &xf,
+            &yf
         );
     } else {
-        draw_panel!(area, caption, x.0..x.1, y0..y1, x_label, panel, err);
+        let yf = |v: &f64| tick(*v, y1 - y0);
+        draw_panel!(
+            area,
+            caption,
+            x.0..x.1,
+            y0..y1,
+            x_label,
+            panel,
+            err,
+            &xf,
+            &yf
+        );
     }
     Ok(())
 }
@@ -308,6 +354,8 @@ fn histogram_on(
         .configure_mesh()
         .x_desc(h.x_label.as_str())
         .y_desc(h.y_label.as_str())
+        .x_label_formatter(&|v| tick(*v, hi - lo))
+        .y_label_formatter(&|v| tick(*v, top))
         .label_style((FONT_NAME, 14))
         .axis_desc_style((FONT_NAME, 16))
         .draw()
@@ -544,6 +592,7 @@ fn colour_bar(
         .disable_mesh()
         .disable_x_axis()
         .y_desc(label)
+        .y_label_formatter(&|v| tick(*v, vmax - vmin))
         .label_style((FONT_NAME, 13))
         .axis_desc_style((FONT_NAME, 15))
         .draw()
@@ -642,6 +691,19 @@ pub struct ImagePanel<'a> {
     /// Values at the ends of the colour map.
     pub range: (f64, f64),
     pub map: ColourMap,
+    /// A circle `(cx, cy, radius)` outlined over the image, in image
+    /// coordinates (e.g. a disk's limb).
+    pub circle: Option<(f64, f64, f64)>,
+}
+
+/// Outline of a circle in image coordinates, as chart points (y negated).
+fn circle_path((cx, cy, r): (f64, f64, f64)) -> Vec<(f64, f64)> {
+    (0..=180)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / 180.0;
+            (cx + r * a.cos(), -(cy + r * a.sin()))
+        })
+        .collect()
 }
 
 /// Margins that keep a `w`×`h` data box square-pixelled in `area`.
@@ -694,6 +756,7 @@ pub fn image_panel(area: &Area, p: &ImagePanel, path: &Path) -> Result<()> {
         .disable_mesh()
         .x_desc("x (px)")
         .y_desc("y (px)")
+        .x_label_formatter(&|x| format!("{x:.0}"))
         .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
         .label_style((FONT_NAME, 13))
         .axis_desc_style((FONT_NAME, 14))
@@ -718,6 +781,17 @@ pub fn image_panel(area: &Area, p: &ImagePanel, path: &Path) -> Result<()> {
             )
         }))
         .map_err(|e| err(e.to_string()))?;
+    if let Some(c) = p
+        .circle
+        .filter(|c| c.0.is_finite() && c.1.is_finite() && c.2 > 0.0)
+    {
+        chart
+            .draw_series(std::iter::once(PathElement::new(
+                circle_path(c),
+                PALETTE[4].stroke_width(1),
+            )))
+            .map_err(|e| err(e.to_string()))?;
+    }
     colour_bar(&bar, (lo, hi), p.map, &p.value_label, path)
 }
 
