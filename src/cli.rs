@@ -1,6 +1,7 @@
 //! The subcommands' bodies: argument handling around the library.
 
 pub mod calibrate;
+pub mod plot_log;
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};

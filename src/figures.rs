@@ -1,6 +1,6 @@
 //! Small reusable PNG figures for reports: curves with an optional log axis
-//! and a residual panel, a heatmap with a colour bar, and a quiver (arrow)
-//! plot. Built on `plotters`' bitmap backend with the bundled DejaVu Sans
+//! and a residual panel, curves over a histogram with marker lines, a
+//! heatmap with a colour bar, and a quiver (arrow) plot. Built on `plotters`' bitmap backend with the bundled DejaVu Sans
 //! (data/fonts/), so no system font library is needed.
 //!
 //! Every figure has a title and axis labels with units (the caller gives
@@ -52,6 +52,8 @@ pub struct Series {
     pub label: String,
     pub points: Vec<(f64, f64)>,
     pub mark: Mark,
+    /// Colour; `None`: the next colour of [`PALETTE`].
+    pub colour: Option<RGBColor>,
 }
 
 impl Series {
@@ -60,6 +62,7 @@ impl Series {
             label: label.into(),
             points,
             mark: Mark::Line,
+            colour: None,
         }
     }
 
@@ -68,6 +71,15 @@ impl Series {
             label: label.into(),
             points,
             mark: Mark::Points,
+            colour: None,
+        }
+    }
+
+    /// The same series drawn in `colour`.
+    pub fn with_colour(self, colour: RGBColor) -> Series {
+        Series {
+            colour: Some(colour),
+            ..self
         }
     }
 }
@@ -131,10 +143,39 @@ fn span(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     }
 }
 
+/// Tick label of `v` on a linear axis spanning `span`: as many decimals
+/// as the ticks (about a tenth of the span) need.
+fn tick(v: f64, span: f64) -> String {
+    let d = if span.is_finite() && span > 0.0 {
+        (-(span / 10.0).log10()).ceil().clamp(0.0, 6.0) as usize
+    } else {
+        2
+    };
+    let t = format!("{v:.d$}");
+    // No "-0".
+    if t.trim_start_matches('-')
+        .chars()
+        .all(|c| c == '0' || c == '.')
+    {
+        t.trim_start_matches('-').to_string()
+    } else {
+        t
+    }
+}
+
+/// Tick label of `v` on a log axis.
+fn tick_log(v: f64) -> String {
+    if !(v > 0.0) || !(1e-3..1e5).contains(&v) {
+        return format!("{v:.0e}");
+    }
+    let d = (-v.log10().floor()).clamp(0.0, 3.0) as usize;
+    format!("{v:.d$}")
+}
+
 /// Draws one panel on `area`. A macro, because plotters' linear and log
 /// charts are different types with the same drawing calls.
 macro_rules! draw_panel {
-    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr) => {{
+    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr, $xf:expr, $yf:expr) => {{
         let mut builder = ChartBuilder::on($area);
         if let Some(c) = $caption {
             builder.caption(c, (FONT_NAME, 22));
@@ -149,13 +190,15 @@ macro_rules! draw_panel {
             .configure_mesh()
             .x_desc($x_label)
             .y_desc($panel.y_label.as_str())
+            .x_label_formatter($xf)
+            .y_label_formatter($yf)
             .label_style((FONT_NAME, 14))
             .axis_desc_style((FONT_NAME, 16))
             .draw()
             .map_err(|e| $err(e.to_string()))?;
         let mut labelled = false;
         for (i, s) in $panel.series.iter().enumerate() {
-            let colour = PALETTE[i % PALETTE.len()];
+            let colour = s.colour.unwrap_or(PALETTE[i % PALETTE.len()]);
             let pts = finite_points(s, $panel.log_y);
             let anno = match s.mark {
                 Mark::Line => chart.draw_series(LineSeries::new(pts, colour.stroke_width(2))),
@@ -200,7 +243,9 @@ fn panel_on(
         .flat_map(|s| finite_points(s, panel.log_y))
         .map(|p| p.1);
     let (y0, y1) = span(ys, panel.log_y);
+    let xf = |v: &f64| tick(*v, x.1 - x.0);
     if panel.log_y {
+        let yf = |v: &f64| tick_log(*v);
         draw_panel!(
             area,
             caption,
@@ -208,10 +253,23 @@ fn panel_on(
             (y0..y1).log_scale(),
             x_label,
             panel,
-            err
+            err,
+            &xf,
+            &yf
         );
     } else {
-        draw_panel!(area, caption, x.0..x.1, y0..y1, x_label, panel, err);
+        let yf = |v: &f64| tick(*v, y1 - y0);
+        draw_panel!(
+            area,
+            caption,
+            x.0..x.1,
+            y0..y1,
+            x_label,
+            panel,
+            err,
+            &xf,
+            &yf
+        );
     }
     Ok(())
 }
@@ -238,6 +296,142 @@ pub fn curve_figure(path: impl AsRef<Path>, fig: &CurveFigure) -> Result<()> {
         }
         None => panel_on(&root, Some(&fig.title), x, &fig.x_label, &fig.main, path)?,
     }
+    root.present().map_err(|e| err(e.to_string()))?;
+    Ok(())
+}
+
+/// A histogram of `values` in `bins` equal bins over their range, with
+/// labelled vertical marker lines (e.g. percentiles).
+#[derive(Debug, Clone)]
+pub struct Histogram {
+    pub x_label: String,
+    pub y_label: String,
+    pub values: Vec<f64>,
+    pub bins: usize,
+    /// `(label, x)` drawn as vertical lines in the palette's colours.
+    pub markers: Vec<(String, f64)>,
+}
+
+/// Bin counts of the finite `values` over `[lo, hi]` (the top edge
+/// belongs to the last bin).
+pub fn bin_counts(values: &[f64], lo: f64, hi: f64, bins: usize) -> Vec<u64> {
+    let bins = bins.max(1);
+    let mut counts = vec![0u64; bins];
+    let width = (hi - lo) / bins as f64;
+    for &v in values
+        .iter()
+        .filter(|v| v.is_finite() && **v >= lo && **v <= hi)
+    {
+        let k = if width > 0.0 {
+            ((v - lo) / width) as usize
+        } else {
+            0
+        };
+        counts[k.min(bins - 1)] += 1;
+    }
+    counts
+}
+
+fn histogram_on(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    h: &Histogram,
+    path: &Path,
+) -> Result<()> {
+    let err = draw_err(path);
+    let finite = h.values.iter().copied().filter(|v| v.is_finite());
+    let marks = h.markers.iter().map(|m| m.1).filter(|v| v.is_finite());
+    let (lo, hi) = span(finite.chain(marks), false);
+    let bins = h.bins.clamp(1, 10_000);
+    let counts = bin_counts(&h.values, lo, hi, bins);
+    let top = counts.iter().copied().max().unwrap_or(0).max(1) as f64 * 1.1;
+    let mut chart = ChartBuilder::on(area)
+        .margin(12)
+        .x_label_area_size(42)
+        .y_label_area_size(80)
+        .build_cartesian_2d(lo..hi, 0.0..top)
+        .map_err(|e| err(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .x_desc(h.x_label.as_str())
+        .y_desc(h.y_label.as_str())
+        .x_label_formatter(&|v| tick(*v, hi - lo))
+        .y_label_formatter(&|v| tick(*v, top))
+        .label_style((FONT_NAME, 14))
+        .axis_desc_style((FONT_NAME, 16))
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    let width = (hi - lo) / bins as f64;
+    chart
+        .draw_series(
+            counts
+                .iter()
+                .enumerate()
+                .filter(|c| *c.1 > 0)
+                .map(|(k, &c)| {
+                    let x0 = lo + k as f64 * width;
+                    Rectangle::new(
+                        [(x0, 0.0), (x0 + width, c as f64)],
+                        RGBColor(150, 150, 150).filled(),
+                    )
+                }),
+        )
+        .map_err(|e| err(e.to_string()))?;
+    for (i, (label, x)) in h.markers.iter().enumerate() {
+        if !x.is_finite() {
+            continue;
+        }
+        let colour = PALETTE[i % PALETTE.len()];
+        chart
+            .draw_series(LineSeries::new(
+                vec![(*x, 0.0), (*x, top)],
+                colour.stroke_width(2),
+            ))
+            .map_err(|e| err(e.to_string()))?
+            .label(label.as_str())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(3))
+            });
+    }
+    if !h.markers.is_empty() {
+        chart
+            .configure_series_labels()
+            .label_font((FONT_NAME, 14))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()
+            .map_err(|e| err(e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// A curve panel (with the title) above a histogram panel.
+#[derive(Debug, Clone)]
+pub struct CurveAndHistogram {
+    pub title: String,
+    pub x_label: String,
+    pub main: Panel,
+    pub histogram: Histogram,
+    /// Pixels.
+    pub size: (u32, u32),
+}
+
+/// Writes a curve panel over a histogram as PNG.
+pub fn curve_and_histogram(path: impl AsRef<Path>, fig: &CurveAndHistogram) -> Result<()> {
+    let path = path.as_ref();
+    ensure_font();
+    let err = draw_err(path);
+    let root = BitMapBackend::new(path, fig.size).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let xs = fig
+        .main
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
+    let x = span(xs, false);
+    let (top, bottom) = root.split_vertically(fig.size.1 * 58 / 100);
+    panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
+    histogram_on(&bottom, &fig.histogram, path)?;
     root.present().map_err(|e| err(e.to_string()))?;
     Ok(())
 }
@@ -282,17 +476,24 @@ pub struct Heatmap<'a> {
     pub size: (u32, u32),
 }
 
-/// Block-averages `values` to at most `max_cells` cells along each axis.
-fn downsample(h: &Heatmap, max_cells: usize) -> (usize, usize, usize, Vec<f64>) {
-    let step = h.width.max(h.height).div_ceil(max_cells).max(1);
-    let (nw, nh) = (h.width.div_ceil(step), h.height.div_ceil(step));
+/// Block-averages a `width`×`height` raster to at most `max_cells` cells
+/// along each axis (non-finite values left out; an empty cell is NaN).
+/// Returns the cells per row and the block size.
+fn block_mean(
+    width: usize,
+    height: usize,
+    values: &[f64],
+    max_cells: usize,
+) -> (usize, usize, Vec<f64>) {
+    let step = width.max(height).div_ceil(max_cells.max(1)).max(1);
+    let (nw, nh) = (width.div_ceil(step), height.div_ceil(step));
     let mut out = vec![0.0; nw * nh];
-    for (j, row) in out.chunks_mut(nw).enumerate() {
+    for (j, row) in out.chunks_mut(nw.max(1)).enumerate() {
         for (i, cell) in row.iter_mut().enumerate() {
             let (mut sum, mut n) = (0.0, 0usize);
-            for y in j * step..((j + 1) * step).min(h.height) {
-                for x in i * step..((i + 1) * step).min(h.width) {
-                    let v = h.values[y * h.width + x];
+            for y in j * step..((j + 1) * step).min(height) {
+                for x in i * step..((i + 1) * step).min(width) {
+                    let v = values[y * width + x];
                     if v.is_finite() {
                         sum += v;
                         n += 1;
@@ -302,7 +503,11 @@ fn downsample(h: &Heatmap, max_cells: usize) -> (usize, usize, usize, Vec<f64>) 
             *cell = if n > 0 { sum / n as f64 } else { f64::NAN };
         }
     }
-    (nw, nh, step, out)
+    (nw, step, out)
+}
+
+fn downsample(h: &Heatmap, max_cells: usize) -> (usize, usize, Vec<f64>) {
+    block_mean(h.width, h.height, h.values, max_cells)
 }
 
 /// Writes a heatmap with a colour bar as PNG. The y axis runs down (image
@@ -319,7 +524,7 @@ pub fn heatmap(path: impl AsRef<Path>, h: &Heatmap) -> Result<()> {
             h.height
         )));
     }
-    let (nw, nh, step, cells) = downsample(h, 240);
+    let (nw, step, cells) = downsample(h, 240);
     let (vmin, vmax) = span(cells.iter().copied().filter(|v| v.is_finite()), false);
     let norm = |v: f64| (v - vmin) / (vmax - vmin);
     let root = BitMapBackend::new(path, h.size).into_drawing_area();
@@ -361,16 +566,15 @@ pub fn heatmap(path: impl AsRef<Path>, h: &Heatmap) -> Result<()> {
             )
         }))
         .map_err(|e| err(e.to_string()))?;
-    let _ = nh;
-    colour_bar(&bar, vmin, vmax, &h.value_label, path)?;
+    colour_bar(&bar, (vmin, vmax), ColourMap::Viridis, &h.value_label, path)?;
     root.present().map_err(|e| err(e.to_string()))?;
     Ok(())
 }
 
 fn colour_bar(
     area: &DrawingArea<BitMapBackend<'_>, Shift>,
-    vmin: f64,
-    vmax: f64,
+    (vmin, vmax): (f64, f64),
+    map: ColourMap,
     label: &str,
     path: &Path,
 ) -> Result<()> {
@@ -388,6 +592,7 @@ fn colour_bar(
         .disable_mesh()
         .disable_x_axis()
         .y_desc(label)
+        .y_label_formatter(&|v| tick(*v, vmax - vmin))
         .label_style((FONT_NAME, 13))
         .axis_desc_style((FONT_NAME, 15))
         .draw()
@@ -399,11 +604,195 @@ fn colour_bar(
             let b = vmin + (vmax - vmin) * (k + 1) as f64 / n as f64;
             Rectangle::new(
                 [(0.0, a), (1.0, b)],
-                viridis((k as f64 + 0.5) / n as f64).filled(),
+                map.colour((k as f64 + 0.5) / n as f64).filled(),
             )
         }))
         .map_err(|e| err(e.to_string()))?;
     Ok(())
+}
+
+/// Colour maps for values scaled to [0, 1].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ColourMap {
+    /// Perceptually ordered, for magnitudes ([`viridis`]).
+    Viridis,
+    /// Black (0) to white (1), for images.
+    Grey,
+    /// Blue (0) – white (½) – red (1), for signed differences.
+    Diverging,
+}
+
+impl ColourMap {
+    /// The colour of `t` (clamped to [0, 1]; NaN: the low end).
+    pub fn colour(self, t: f64) -> RGBColor {
+        let t = if t.is_finite() {
+            t.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let lerp = |a: (u8, u8, u8), b: (u8, u8, u8), w: f64| {
+            let m = |x: u8, y: u8| (x as f64 * (1.0 - w) + y as f64 * w).round() as u8;
+            RGBColor(m(a.0, b.0), m(a.1, b.1), m(a.2, b.2))
+        };
+        match self {
+            ColourMap::Viridis => viridis(t),
+            ColourMap::Grey => lerp((0, 0, 0), (255, 255, 255), t),
+            ColourMap::Diverging if t < 0.5 => lerp((33, 102, 172), (255, 255, 255), 2.0 * t),
+            ColourMap::Diverging => lerp((255, 255, 255), (178, 24, 43), 2.0 * t - 1.0),
+        }
+    }
+}
+
+/// A drawing area of a figure being built.
+pub type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+
+/// A white canvas of `size` pixels writing to `path` on [`present`].
+pub fn canvas(path: &Path, size: (u32, u32)) -> Result<Area<'_>> {
+    ensure_font();
+    let root = BitMapBackend::new(path, size).into_drawing_area();
+    root.fill(&WHITE)
+        .map_err(|e| draw_err(path)(e.to_string()))?;
+    Ok(root)
+}
+
+/// Writes the canvas to its file.
+pub fn present(root: &Area, path: &Path) -> Result<()> {
+    root.present().map_err(|e| draw_err(path)(e.to_string()))
+}
+
+/// Lines of text from the top-left of `area`, `font_px` high.
+pub fn text_block(area: &Area, lines: &[String], font_px: u32, path: &Path) -> Result<()> {
+    ensure_font();
+    let step = (font_px as f64 * 1.35) as i32;
+    for (k, line) in lines.iter().enumerate() {
+        area.draw(&Text::new(
+            line.as_str(),
+            (10, 6 + k as i32 * step),
+            (FONT_NAME, font_px).into_font().color(&BLACK),
+        ))
+        .map_err(|e| draw_err(path)(e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// A raster drawn in image coordinates (y down, pixel `(c, r)` covering
+/// `[c, c+1] × [r, r+1]` from `origin`), with a colour bar.
+#[derive(Debug, Clone)]
+pub struct ImagePanel<'a> {
+    pub title: String,
+    /// Colour-bar label with the unit.
+    pub value_label: String,
+    /// Image coordinates of the raster's top-left corner, px.
+    pub origin: (f64, f64),
+    pub width: usize,
+    pub height: usize,
+    /// Row-major, top row first; NaN drawn light grey.
+    pub values: &'a [f64],
+    /// Values at the ends of the colour map.
+    pub range: (f64, f64),
+    pub map: ColourMap,
+    /// A circle `(cx, cy, radius)` outlined over the image, in image
+    /// coordinates (e.g. a disk's limb).
+    pub circle: Option<(f64, f64, f64)>,
+}
+
+/// Outline of a circle in image coordinates, as chart points (y negated).
+fn circle_path((cx, cy, r): (f64, f64, f64)) -> Vec<(f64, f64)> {
+    (0..=180)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / 180.0;
+            (cx + r * a.cos(), -(cy + r * a.sin()))
+        })
+        .collect()
+}
+
+/// Margins that keep a `w`×`h` data box square-pixelled in `area`.
+fn square_margins(area: &Area, w: f64, h: f64) -> (u32, u32) {
+    let (aw, ah) = area.dim_in_pixel();
+    let (pw, ph) = (aw as f64 - 70.0 - 16.0, ah as f64 - 40.0 - 34.0 - 16.0);
+    if pw <= 0.0 || ph <= 0.0 || w <= 0.0 || h <= 0.0 {
+        return (8, 8);
+    }
+    if pw / ph > w / h {
+        (8 + ((pw - ph * w / h) / 2.0) as u32, 8)
+    } else {
+        (8, 8 + ((ph - pw * h / w) / 2.0) as u32)
+    }
+}
+
+/// Draws an [`ImagePanel`] on `area` (its right 20 % holds the colour bar).
+pub fn image_panel(area: &Area, p: &ImagePanel, path: &Path) -> Result<()> {
+    let err = draw_err(path);
+    if p.width == 0 || p.height == 0 || p.values.len() != p.width * p.height {
+        return Err(err(format!(
+            "{} values for a {}×{} panel",
+            p.values.len(),
+            p.width,
+            p.height
+        )));
+    }
+    let (lo, hi) = if p.range.1 > p.range.0 {
+        p.range
+    } else {
+        (p.range.0, p.range.0 + 1.0)
+    };
+    let (aw, _) = area.dim_in_pixel();
+    let (main, bar) = area.split_horizontally(aw * 80 / 100);
+    let (w, h) = (p.width as f64, p.height as f64);
+    let (x0, y0) = p.origin;
+    let (mx, my) = square_margins(&main, w, h);
+    let mut chart = ChartBuilder::on(&main)
+        .caption(&p.title, (FONT_NAME, 18))
+        .margin_left(mx)
+        .margin_right(mx)
+        .margin_top(my)
+        .margin_bottom(my)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x0 + w, -(y0 + h)..-y0)
+        .map_err(|e| err(e.to_string()))?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc("x (px)")
+        .y_desc("y (px)")
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
+        .label_style((FONT_NAME, 13))
+        .axis_desc_style((FONT_NAME, 14))
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    let (nw, step, cells) = block_mean(p.width, p.height, p.values, 300);
+    let s = step as f64;
+    chart
+        .draw_series(cells.iter().enumerate().map(|(k, &v)| {
+            let (i, j) = ((k % nw) as f64, (k / nw) as f64);
+            let colour = if v.is_finite() {
+                p.map.colour((v - lo) / (hi - lo))
+            } else {
+                RGBColor(210, 210, 210)
+            };
+            Rectangle::new(
+                [
+                    (x0 + i * s, -(y0 + j * s)),
+                    (x0 + ((i + 1.0) * s).min(w), -(y0 + ((j + 1.0) * s).min(h))),
+                ],
+                colour.filled(),
+            )
+        }))
+        .map_err(|e| err(e.to_string()))?;
+    if let Some(c) = p
+        .circle
+        .filter(|c| c.0.is_finite() && c.1.is_finite() && c.2 > 0.0)
+    {
+        chart
+            .draw_series(std::iter::once(PathElement::new(
+                circle_path(c),
+                PALETTE[4].stroke_width(1),
+            )))
+            .map_err(|e| err(e.to_string()))?;
+    }
+    colour_bar(&bar, (lo, hi), p.map, &p.value_label, path)
 }
 
 /// One arrow of a quiver plot: from `(x, y)` along `(dx, dy)` (data

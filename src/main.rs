@@ -1,4 +1,4 @@
-//! `optistim` command line: render, run, calibrate, bench, validate.
+//! `optistim` command line: render, run, calibrate, bench, plot-log, validate.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -71,6 +71,9 @@ enum Command {
     /// `flat` (flat field), `geometric` (geometry file), `verify`
     /// (docs/CALIBRATION.md).
     Calibrate(cli::calibrate::CalibrateArgs),
+    /// Draw the timing figure of a frame log: DIR/timing.png (latency
+    /// over time with missed deadlines, histogram with p50/p99).
+    PlotLog(cli::plot_log::PlotLogArgs),
     /// Validate against real flight images.
     #[command(subcommand)]
     Validate(ValidateCommand),
@@ -114,6 +117,7 @@ fn main() -> ExitCode {
     let result = match args.command {
         Command::Run(args) => cli::run(&args),
         Command::Calibrate(args) => cli::calibrate::calibrate(&args),
+        Command::PlotLog(args) => cli::plot_log::plot_log(&args),
         Command::Render {
             scene,
             out,

@@ -12,6 +12,7 @@
 //! | [`display`] | the [`Display`](display::Display) trait, simulated and full-screen X11 displays |
 //! | [`serial`] | per-frame sync command over a serial port that never blocks the loop |
 //! | [`log`] | write-through JSON-lines frame log and run summary |
+//! | [`timing`] | timing figure of a frame log (`optistim plot-log`) |
 //! | [`throttle`] | repeated warnings logged once per interval, with a count |
 //! | [`config`] | the facility TOML file |
 //! | [`driver`] | the real-time loop of `optistim run` tying these together |
@@ -33,5 +34,6 @@ pub mod log;
 pub mod lut;
 pub mod serial;
 pub mod throttle;
+pub mod timing;
 pub mod trajectory;
 pub mod udp;

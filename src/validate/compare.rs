@@ -35,6 +35,7 @@ use super::align::{ncc_align, shift_bilinear, Alignment};
 use super::amie::{self, AmieObservation, GeometryCheck, EARTH_RADIUS_M, MOON_RADIUS_M};
 use super::background::{remove_background, BackgroundModel, BackgroundParams, Disk};
 use super::ephem::{self, Utc};
+use super::figure;
 use super::raster::Raster;
 use super::ssim::{ssim, SsimResult, AMIE_DATA_RANGE};
 use crate::error::{Error, Result};
@@ -315,6 +316,32 @@ pub struct ValidationRun {
     /// Aligned render scaled to the real total signal [DN].
     pub render: Raster,
     pub ssim: SsimResult,
+}
+
+/// The numbers printed on `comparison.png`.
+fn figure_notes(r: &ValidationReport) -> Vec<String> {
+    let scores = |s: &SsimScores| {
+        format!(
+            "{:.4} (luminance {:.4}, contrast {:.4}, structure {:.4})",
+            s.mssim, s.luminance, s.contrast, s.structure
+        )
+    };
+    vec![
+        format!("SSIM full frame: {}", scores(&r.ssim)),
+        format!("SSIM over the disk: {}", scores(&r.ssim_disk)),
+        format!(
+            "shift render → real: ({:+.2}, {:+.2}) px, |shift| {:.2} px; disk centre ({:.1}, {:.1}) px, radius {:.1} px",
+            r.alignment.dx, r.alignment.dy, r.shift_px, r.aligned_disk.cx, r.aligned_disk.cy, r.aligned_disk.radius
+        ),
+        format!(
+            "real / render total signal: {:.4} (render scaled by it); noise floor {:.1} DN",
+            r.total_signal_ratio, r.noise_floor_dn
+        ),
+        format!(
+            "phase: {:.2}° derived, {:.2}° in the label ({:.2}° at the disk centre)",
+            r.phase_derived_deg, r.phase_label_deg, r.phase_at_centre_deg
+        ),
+    ]
 }
 
 /// Runs the pipeline on one AMIE image; see the module doc.
@@ -686,18 +713,23 @@ pub fn run(
     })
 }
 
-/// Writes `dir/comparison.png` (real | render | real − render | SSIM map)
-/// and `dir/report.json`.
+/// Writes `dir/comparison.png` (real, render, real − render and SSIM map
+/// around the disk, with the numbers), `dir/profile.png` and
+/// `dir/report.json`.
 pub fn write_outputs(run: &ValidationRun, dir: impl AsRef<Path>) -> Result<()> {
     let dir = dir.as_ref();
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    super::figure::write_comparison_png(
-        dir.join("comparison.png"),
-        &run.real,
-        &run.render,
-        &run.ssim,
-        &super::figure::FigureOptions::default(),
-    )?;
+    let r = &run.report;
+    let cmp = figure::Comparison {
+        real: &run.real,
+        render: &run.render,
+        ssim: &run.ssim,
+        disk: r.aligned_disk,
+        title: format!("{}, {}", r.product_id, r.model.name),
+        notes: figure_notes(r),
+    };
+    figure::write_comparison_png(dir.join("comparison.png"), &cmp)?;
+    figure::write_profile_png(dir.join("profile.png"), &cmp)?;
     let json =
         serde_json::to_string_pretty(&run.report).map_err(|e| Error::Other(e.to_string()))?;
     let p = dir.join("report.json");
