@@ -735,12 +735,13 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
     }
     let pitch = within(c.pixel_pitch, 1e-8, 0.1, "camera.pixel_pitch")?;
     let focal_length = match (c.focal_length, c.fov_deg) {
-        (Some(f), None) => within(f, 1e-5, 1e3, "camera.focal_length")?,
+        (Some(f), None) => within(f, 1e-5, 1e6, "camera.focal_length")?,
         (None, Some(fov)) => {
             if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
                 return Err(Error::invalid("camera.fov_deg", "must be in (0, 180)"));
             }
-            width as f64 * pitch / 2.0 / (fov.to_radians() / 2.0).tan()
+            let f = width as f64 * pitch / 2.0 / (fov.to_radians() / 2.0).tan();
+            within(f, 1e-5, 1e6, "camera.fov_deg (as a focal length in m)")?
         }
         (Some(_), Some(_)) => {
             return Err(Error::invalid(
