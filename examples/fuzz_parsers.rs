@@ -4,6 +4,7 @@
 //! property tests (`tests/fuzz_parsers.rs`) run the same targets briefly.
 //!
 //!     cargo run --release --example fuzz_parsers -- 1000000 [SEED] [TARGET]
+//!     cargo run --release --example fuzz_parsers -- replay TARGET FILE...
 
 use std::time::{Duration, Instant};
 
@@ -11,6 +12,10 @@ use optistim::fuzzing::{mutate, Rng, Target};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
+    if args.get(1).map(String::as_str) == Some("replay") {
+        replay(&args[2..]);
+        return;
+    }
     let n: u64 = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(100_000);
     let seed: u64 = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(1);
     let only = args.get(3).cloned();
@@ -69,5 +74,30 @@ fn main() {
             max.as_secs_f64() * 1e3,
             start.elapsed().as_secs_f64()
         );
+    }
+}
+
+/// Runs saved inputs once each through one target and prints the outcome
+/// and time: how a `slow` or `panic` file from a long run is reproduced.
+fn replay(args: &[String]) {
+    let Some(target) = args
+        .first()
+        .and_then(|name| Target::ALL.into_iter().find(|t| t.name() == name))
+    else {
+        eprintln!("usage: fuzz_parsers replay TARGET FILE...");
+        std::process::exit(2);
+    };
+    let scratch = tempfile::tempdir().expect("scratch dir");
+    for file in &args[1..] {
+        let input = std::fs::read(file).unwrap_or_default();
+        let t0 = Instant::now();
+        let result = std::panic::catch_unwind(|| target.run(&input, scratch.path()));
+        let outcome = match result {
+            Ok(true) => "accepted",
+            Ok(false) => "rejected",
+            Err(_) => "PANIC",
+        };
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        println!("{file}: {outcome} in {ms:.1} ms ({} bytes)", input.len());
     }
 }
