@@ -2,6 +2,8 @@
 //! runaway file gives an error naming the file and the limit instead of
 //! reading until memory runs out.
 
+pub mod csv_table;
+
 use std::io::Read;
 use std::path::Path;
 

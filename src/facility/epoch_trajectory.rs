@@ -30,10 +30,10 @@ pub const EPOCH_COLUMNS: [&str; 8] = [
 
 /// Whether a CSV header names an `epoch` column (an epoch trajectory).
 pub fn is_epoch_header(text: &str) -> bool {
-    text.trim_start_matches('\u{feff}')
-        .lines()
-        .find(|l| !l.trim().is_empty() && !l.trim_start().starts_with('#'))
-        .is_some_and(|h| h.split(',').any(|c| c.trim() == "epoch"))
+    crate::infile::csv_table::rows(Path::new(""), text.as_bytes(), b',')
+        .next()
+        .and_then(|header| header.ok())
+        .is_some_and(|h| h.cells.iter().any(|c| c == "epoch"))
 }
 
 /// Reads an epoch trajectory file.
@@ -44,21 +44,19 @@ pub fn load(path: &Path, eph: &dyn Ephemeris) -> Result<Trajectory> {
 
 /// Parses epoch-trajectory CSV text; `path` names it in errors.
 pub fn parse(text: &str, path: &Path, eph: &dyn Ephemeris) -> Result<Trajectory> {
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let err = |line: usize, msg: String| Error::parse(path, format!("line {line}: {msg}"));
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, l))
-        .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-    let (header_line, header) = lines
+    let mut rows = crate::infile::csv_table::rows(path, text.as_bytes(), b',');
+    let header = rows
         .next()
+        .transpose()?
         .ok_or_else(|| Error::parse(path, "empty file: no header line"))?;
-    let map = column_map(header).map_err(|m| err(header_line, m))?;
+    let map = column_map(&header.cells).map_err(|m| err(header.line, m))?;
     let mut first: Option<Epoch> = None;
     let mut states: Vec<State> = Vec::new();
-    for (line_no, line) in lines {
-        let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+    for row in rows {
+        let row = row?;
+        let line_no = row.line;
+        let cells: Vec<&str> = row.cells.iter().collect();
         if cells.len() != map.len() {
             let msg = format!("expected {} fields, found {}", map.len(), cells.len());
             return Err(err(line_no, msg));
@@ -93,10 +91,10 @@ pub fn parse(text: &str, path: &Path, eph: &dyn Ephemeris) -> Result<Trajectory>
 }
 
 /// Header position → index in [`EPOCH_COLUMNS`]; all columns required once.
-fn column_map(header: &str) -> std::result::Result<Vec<usize>, String> {
+fn column_map(header: &csv::StringRecord) -> std::result::Result<Vec<usize>, String> {
     let mut map = Vec::new();
     let mut seen = [false; 8];
-    for name in header.split(',').map(str::trim) {
+    for name in header.iter() {
         let idx = EPOCH_COLUMNS
             .iter()
             .position(|c| *c == name)

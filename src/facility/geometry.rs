@@ -171,20 +171,24 @@ impl GeometryCalibration {
     ) -> Result<GeometryCalibration> {
         let path = path.as_ref();
         let err = |line: usize, msg: String| Error::parse(path, format!("line {line}: {msg}"));
-        let mut rows = super::lut::csv_lines(path, bytes)?;
-        let (hl, header) = rows.next().ok_or_else(|| {
+        let mut rows = crate::infile::csv_table::rows(path, bytes, b',');
+        let header = rows.next().transpose()?.ok_or_else(|| {
             Error::parse(
                 path,
-                format!("empty file: expected a header naming {GEOMETRY_COLUMNS:?}"),
+                "empty file: expected a header naming u_px, v_px, tan_x, tan_y",
             )
         })?;
-        let names: Vec<&str> = header.split(',').map(str::trim).collect();
+        let hl = header.line;
+        let names: Vec<&str> = header.cells.iter().collect();
         let mut col = [usize::MAX; 4];
         for (i, name) in names.iter().enumerate() {
             let Some(k) = GEOMETRY_COLUMNS.iter().position(|c| c == name) else {
                 return Err(err(
                     hl,
-                    format!("unknown column `{name}` (columns: u_px, v_px, tan_x, tan_y)"),
+                    format!(
+                        "unknown column `{}` (columns: u_px, v_px, tan_x, tan_y)",
+                        crate::error::abbreviate(name, 40)
+                    ),
                 ));
             };
             if col[k] != usize::MAX {
@@ -201,8 +205,10 @@ impl GeometryCalibration {
 
         // Nodes: (u, v, tan_x, tan_y, line).
         let mut nodes: Vec<([f64; 4], usize)> = Vec::new();
-        for (ln, row) in rows {
-            let cells: Vec<&str> = row.split(',').map(str::trim).collect();
+        for row in rows {
+            let row = row?;
+            let ln = row.line;
+            let cells: Vec<&str> = row.cells.iter().collect();
             if cells.len() != names.len() {
                 return Err(err(
                     ln,

@@ -48,6 +48,7 @@ use std::path::{Path, PathBuf};
 use sha2::{Digest, Sha256};
 
 use crate::error::{Error, Result};
+use crate::infile::csv_table;
 
 /// Exact header line of a LUT file.
 pub const LUT_HEADER: &str = "drive_level,radiance_w_m2_sr";
@@ -164,23 +165,28 @@ impl DisplayLut {
         let path = path.as_ref();
         let err = |line: usize, msg: String| Error::parse(path, format!("line {line}: {msg}"));
         let levels = levels_for_bits(bits)?;
-        let mut rows = csv_lines(path, bytes)?;
-        let (hl, header) = rows.next().ok_or_else(|| {
+        let mut rows = csv_table::rows(path, bytes, b',');
+        let header = rows.next().transpose()?.ok_or_else(|| {
             Error::parse(path, format!("empty file: expected header `{LUT_HEADER}`"))
         })?;
-        let header_norm: String = header.chars().filter(|c| !c.is_whitespace()).collect();
-        if header_norm != LUT_HEADER {
+        let hl = header.line;
+        if header.joined() != LUT_HEADER {
             return Err(err(
                 hl,
-                format!("header must be `{LUT_HEADER}`, found `{header}`"),
+                format!(
+                    "header must be `{LUT_HEADER}`, found `{}`",
+                    crate::error::abbreviate(&header.joined(), 60)
+                ),
             ));
         }
         let mut xs: Vec<f64> = Vec::new();
         let mut ys: Vec<f64> = Vec::new();
         let mut last_line = hl;
-        for (ln, row) in rows {
+        for row in rows {
+            let row = row?;
+            let ln = row.line;
             last_line = ln;
-            let cells: Vec<&str> = row.split(',').map(str::trim).collect();
+            let cells: Vec<&str> = row.cells.iter().collect();
             if cells.len() != 2 {
                 return Err(err(ln, format!("expected 2 fields, found {}", cells.len())));
             }
@@ -587,22 +593,6 @@ impl FlatField {
     pub fn sha256(&self) -> &str {
         &self.sha256
     }
-}
-
-/// The numbered (from 1), trimmed lines of a calibration CSV file's bytes,
-/// without blank lines and `#` comments; an error naming the file if it is
-/// not UTF-8 text.
-pub(crate) fn csv_lines<'a>(
-    path: &Path,
-    bytes: &'a [u8],
-) -> Result<impl Iterator<Item = (usize, &'a str)>> {
-    let text = std::str::from_utf8(bytes)
-        .map_err(|e| Error::parse(path, format!("not UTF-8 text: {e}")))?;
-    Ok(text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#')))
 }
 
 #[cfg(test)]

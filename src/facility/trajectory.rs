@@ -160,6 +160,8 @@ impl State {
     /// Parses one CSV line with all 18 fields in the fixed [`COLUMNS`] order
     /// (optional body fields may be empty). Errors name the column.
     pub fn from_csv_line(line: &str) -> Result<State> {
+        // One datagram, one unquoted line: split directly rather than build
+        // a CSV reader (and its buffer) at the sender's rate.
         let cells: Vec<&str> = line.trim().split(',').collect();
         if cells.len() != COLUMNS.len() {
             return Err(Error::invalid(
@@ -298,26 +300,25 @@ impl Trajectory {
     /// Parses CSV text; `path` is only used in error messages.
     pub fn parse(text: &str, path: impl AsRef<Path>) -> Result<Trajectory> {
         let path = path.as_ref();
-        // A byte-order mark is not part of the first column's name.
-        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let err = |line: usize, msg: String| Error::parse(path, format!("line {line}: {msg}"));
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .map(|(i, l)| (i + 1, l))
-            .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-        let (header_line, header) = lines
+        let mut rows = crate::infile::csv_table::rows(path, text.as_bytes(), b',');
+        let header = rows
             .next()
+            .transpose()?
             .ok_or_else(|| Error::parse(path, "empty file: no header line"))?;
+        let header_line = header.line;
         // Map header position → index in COLUMNS.
         let mut map: Vec<usize> = Vec::new();
         let mut seen = [false; 18];
-        for name in header.split(',') {
-            let name = name.trim();
+        for name in header.cells.iter() {
             let idx = COLUMNS.iter().position(|c| *c == name).ok_or_else(|| {
                 err(
                     header_line,
-                    format!("unknown column `{name}` (known: {})", COLUMNS.join(", ")),
+                    format!(
+                        "unknown column `{}` (known: {})",
+                        crate::error::abbreviate(name, 40),
+                        COLUMNS.join(", ")
+                    ),
                 )
             })?;
             if seen[idx] {
@@ -335,8 +336,10 @@ impl Trajectory {
             }
         }
         let mut states: Vec<State> = Vec::new();
-        for (line_no, line) in lines {
-            let cells: Vec<&str> = line.split(',').collect();
+        for row in rows {
+            let row = row?;
+            let line_no = row.line;
+            let cells: Vec<&str> = row.cells.iter().collect();
             if cells.len() != map.len() {
                 return Err(err(
                     line_no,

@@ -8,6 +8,7 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
+use crate::infile::csv_table;
 
 /// Planck constant [J s].
 pub const PLANCK: f64 = 6.626_070_15e-34;
@@ -52,50 +53,37 @@ impl Table {
         })
     }
 
-    /// Read a two-column CSV (`wavelength_nm, value`); a non-numeric first
-    /// line is a header. Errors name the file and line.
+    /// Read a two-column table (`wavelength_nm, value`) separated by
+    /// commas, semicolons, tabs or spaces; a non-numeric first row is a
+    /// header. Errors name the file and line.
     pub fn from_csv(path: &Path) -> Result<Self> {
-        let text = crate::infile::read_text_bounded(path, crate::infile::TABLE_LIMIT)?;
+        let bytes = crate::infile::read_bounded(path, crate::infile::TABLE_LIMIT)?;
+        let delimiter = csv_table::sniff_delimiter(&bytes);
         let mut wavelengths = Vec::new();
         let mut values = Vec::new();
-        for (index, line) in text.lines().enumerate() {
-            let line_no = index + 1;
-            let line = line.trim();
-            if line.is_empty() || line.starts_with('#') {
-                continue;
-            }
-            let mut fields = line.split([',', ';', '\t', ' ']).filter(|f| !f.is_empty());
+        for (index, row) in csv_table::rows(path, &bytes, delimiter).enumerate() {
+            let row = row?;
+            let err = |msg: String| Error::parse(path, format!("line {}: {msg}", row.line));
+            // Runs of spaces leave empty cells between the numbers.
+            let mut fields = row.cells.iter().filter(|f| !f.is_empty());
             let (Some(a), Some(b)) = (fields.next(), fields.next()) else {
-                return Err(Error::parse(
-                    path,
-                    format!("line {line_no}: expected two columns"),
-                ));
+                return Err(err("expected two columns".into()));
             };
-            match (a.trim().parse::<f64>(), b.trim().parse::<f64>()) {
+            match (a.parse::<f64>(), b.parse::<f64>()) {
                 (Ok(nm), Ok(v)) => {
                     if !nm.is_finite() || !v.is_finite() || v < 0.0 {
-                        return Err(Error::parse(
-                            path,
-                            format!("line {line_no}: non-finite or negative value"),
-                        ));
+                        return Err(err("non-finite or negative value".into()));
                     }
-                    if let Some(&last) = wavelengths.last() {
-                        if nm * 1e-9 <= last {
-                            return Err(Error::parse(
-                                path,
-                                format!("line {line_no}: wavelength does not increase"),
-                            ));
-                        }
+                    if wavelengths.last().is_some_and(|&last| nm * 1e-9 <= last) {
+                        return Err(err("wavelength does not increase".into()));
                     }
                     wavelengths.push(nm * 1e-9);
                     values.push(v);
                 }
-                _ if wavelengths.is_empty() && values.is_empty() && index == 0 => {}
+                _ if index == 0 => {}
                 _ => {
-                    return Err(Error::parse(
-                        path,
-                        format!("line {line_no}: cannot parse `{line}` as numbers"),
-                    ))
+                    let text = crate::error::abbreviate(&row.joined(), 60);
+                    return Err(err(format!("cannot parse `{text}` as numbers")));
                 }
             }
         }
