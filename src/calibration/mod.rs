@@ -69,6 +69,13 @@ pub struct Rect {
     pub h: usize,
 }
 
+/// `w×h at (x, y)`, as written in reports and file headers.
+impl std::fmt::Display for Rect {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}×{} at ({}, {})", self.w, self.h, self.x, self.y)
+    }
+}
+
 impl Rect {
     /// The rectangle of fractional `[x, y, w, h]` in a `width × height`
     /// frame (at least one pixel).

@@ -609,7 +609,7 @@ pub fn lut_csv(r: &Report, setup: &Setup) -> String {
         r.date, r.software, setup.source
     ));
     line(format!(
-        "camera: {}; region {:?} px; exposure {:.3e}..{:.3e} s (auto-ranged, normalised to DN/s)",
+        "camera: {}; region {} px; exposure {:.3e}..{:.3e} s (auto-ranged, normalised to DN/s)",
         r.camera, r.region, r.exposure_range_s[0], r.exposure_range_s[1]
     ));
     line(format!("meter: {}; scale: {}", r.meter, r.scale_method));

@@ -410,7 +410,13 @@ impl Converter {
             if f.size() != screen {
                 return Err(Error::invalid(
                     "calibration.flat_field",
-                    format!("flat field is {:?} but the screen is {screen:?}", f.size()),
+                    format!(
+                        "flat field is {}×{} px but the screen is {}×{} px",
+                        f.size().0,
+                        f.size().1,
+                        screen.0,
+                        screen.1
+                    ),
                 ));
             }
         }
