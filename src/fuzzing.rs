@@ -78,9 +78,14 @@ impl Target {
             Target::Lut => vec![s(include_bytes!("../calib/example_lut.csv"))],
             Target::Geometry => vec![s(GEOMETRY_SEED.as_bytes())],
             Target::Spectrum => vec![head(include_bytes!("../data/solar/astm_e490_am0.csv"), 40)],
-            Target::Pds3Label | Target::Pds3Image => vec![s(include_bytes!(
-                "../data/amie/AMI_EE3_041028_00101_00010.IMG"
-            ))],
+            // The label records (what the label parser reads) of both
+            // AMIE files; for the image reader a 16×16 copy of one, so a
+            // mutation costs microseconds, not a 0.5 MB image.
+            Target::Pds3Label => vec![
+                s(&AMIE_041028[..AMIE_LABEL_BYTES]),
+                s(&AMIE_040819[..AMIE_LABEL_BYTES]),
+            ],
+            Target::Pds3Image => vec![small_amie()],
             Target::UdpDatagram => vec![
                 s(b"1.5,0,0,-4e8,1,0,0,0,1.3e11,0,-7.5e10,0,0,0,0.5,0.5,0.5,-0.5\n"),
                 s(br#"{"t":1.0,"camera_position":[0,0,-1e7],"camera_attitude":[1,0,0,0],"sun_position":[1.5e11,0,0]}"#),
@@ -116,10 +121,7 @@ impl Target {
                     && crate::radiometry::spectrum::Table::from_csv(&p).is_ok()
             }
             Target::Pds3Label => crate::validate::pds3::Label::parse(bytes, name).is_ok(),
-            Target::Pds3Image => {
-                let p = scratch.join("image.IMG");
-                std::fs::write(&p, bytes).is_ok() && crate::validate::pds3::read_image(&p).is_ok()
-            }
+            Target::Pds3Image => crate::validate::pds3::parse_image(bytes, name).is_ok(),
             Target::UdpDatagram => f::udp::parse_datagram(bytes).is_ok(),
             Target::SyncTemplate => f::serial::CommandTemplate::parse(&text).is_ok(),
         }
@@ -165,6 +167,64 @@ const GEOMETRY_SEED: &str = "u_px,v_px,tan_x,tan_y\n\
 0,32,-0.01,0.005\n32,32,0,0.005\n64,32,0.01,0.005\n";
 
 /// The first `n` lines of `bytes`.
+const AMIE_041028: &[u8] = include_bytes!("../data/amie/AMI_EE3_041028_00101_00010.IMG");
+const AMIE_040819: &[u8] = include_bytes!("../data/amie/AMI_EE3_040819_00208_00030.IMG");
+/// LABEL_RECORDS × RECORD_BYTES of the AMIE files.
+const AMIE_LABEL_BYTES: usize = 20 * 1024;
+
+/// A valid AMIE file with 16×16 browse and main images: the real label
+/// with its sizes, pointer and record count edited in place (same widths),
+/// the browse image and every 32nd pixel of the real image.
+fn small_amie() -> Vec<u8> {
+    let label = String::from_utf8_lossy(&AMIE_041028[..AMIE_LABEL_BYTES]).into_owned();
+    let edits = [
+        (
+            "FILE_RECORDS                   = 548",
+            "FILE_RECORDS                   =  22",
+        ),
+        (
+            "^IMAGE                         = 36865",
+            "^IMAGE                         = 21505",
+        ),
+        (
+            "LINES                       = 128",
+            "LINES                       =  16",
+        ),
+        (
+            "LINE_SAMPLES                = 128",
+            "LINE_SAMPLES                =  16",
+        ),
+        (
+            "LINES                       = 512",
+            "LINES                       =  16",
+        ),
+        (
+            "LINE_SAMPLES                = 512",
+            "LINE_SAMPLES                =  16",
+        ),
+    ];
+    let label = edits
+        .iter()
+        .fold(label, |l, (from, to)| l.replacen(from, to, 1));
+    let mut out = label.into_bytes();
+    let record = |out: &mut Vec<u8>, data: &[u8]| {
+        out.extend_from_slice(data);
+        out.resize(out.len().div_ceil(1024) * 1024, 0);
+    };
+    let browse: Vec<u8> = (0..256)
+        .map(|k| AMIE_041028[20480 + (k / 16) * 8 * 128 + (k % 16) * 8])
+        .collect();
+    record(&mut out, &browse);
+    let image: Vec<u8> = (0..256)
+        .flat_map(|k| {
+            let at = 36864 + 2 * ((k / 16) * 32 * 512 + (k % 16) * 32);
+            [AMIE_041028[at], AMIE_041028[at + 1]]
+        })
+        .collect();
+    record(&mut out, &image);
+    out
+}
+
 fn head(bytes: &[u8], n: usize) -> Vec<u8> {
     let mut end = 0;
     for _ in 0..n {
@@ -268,4 +328,30 @@ pub fn mutate(input: &[u8], rng: &mut Rng) -> Vec<u8> {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The small seed is a valid file whose pixels are the real image's
+    /// every 32nd (so mutations start from something the reader accepts).
+    #[test]
+    fn small_amie_is_the_real_image_subsampled() {
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("data/amie/AMI_EE3_041028_00101_00010.IMG");
+        let real = crate::validate::pds3::read_image(&path).unwrap();
+        let small = crate::validate::pds3::parse_image(&small_amie(), Path::new("small")).unwrap();
+        assert_eq!(small.raw.len(), 256);
+        for k in 0..256 {
+            let (row, col) = (k / 16, k % 16);
+            assert_eq!(
+                small.raw[k],
+                real.raw[row * 32 * 512 + col * 32],
+                "pixel {k}"
+            );
+        }
+        assert!(Target::Pds3Image.run(&small_amie(), Path::new(".")));
+        assert!(Target::Pds3Label.run(&AMIE_040819[..AMIE_LABEL_BYTES], Path::new(".")));
+    }
 }

@@ -617,7 +617,12 @@ fn optional_count(img: &Group, key: &str) -> Result<u64> {
 pub fn read_image(path: impl AsRef<Path>) -> Result<Pds3Image> {
     let path = path.as_ref();
     let bytes = crate::infile::read_bounded(path, crate::infile::DATA_LIMIT)?;
-    let label = Label::parse(&bytes, path)?;
+    parse_image(&bytes, path)
+}
+
+/// [`read_image`] on the file's bytes; `path` names it in errors.
+pub fn parse_image(bytes: &[u8], path: &Path) -> Result<Pds3Image> {
+    let label = Label::parse(bytes, path)?;
     let root = &label.root;
 
     let record_type = root.string("RECORD_TYPE")?;
