@@ -56,6 +56,16 @@ fn utc_to_tt() {
         Utc::parse("2004-232T23:42:43.134").unwrap(),
         Utc::parse("2004-08-19T23:42:43.134").unwrap()
     );
+    // The last half-minute before a leap second is still on the old offset.
+    assert_eq!(
+        Utc::parse("2005-12-31T23:59:40").unwrap().tai_minus_utc(),
+        32.0
+    );
+    assert_eq!(
+        Utc::parse("2006-01-01T00:00:00").unwrap().tai_minus_utc(),
+        33.0
+    );
+    assert!(Utc::parse("2005-02-30T00:00:00").is_err());
     assert!(Utc::parse("2004-13-01T00:00:00").is_err());
     assert!(Utc::parse("yesterday").is_err());
     // J2000.0 epoch: 2000-01-01T11:58:55.816 UTC = 12:00 TT.

@@ -1,8 +1,8 @@
 //! Time scales and low-precision analytic ephemerides, enough to rebuild the
 //! geometry of an AMIE image from its label without SPICE kernels:
 //!
-//! - UTC text → Julian date, UTC → TT with the IERS leap-second table
-//!   (TDB is taken equal to TT; the difference is below 2 ms).
+//! - UTC text → Julian date, UTC → TT by hifitime (calendar and the IERS
+//!   leap seconds; TDB is taken equal to TT, the difference is below 2 ms).
 //! - Geocentric Sun, J2000 equator: the low-accuracy solar theory of
 //!   J. Meeus, *Astronomical Algorithms* (2nd ed., 1998), ch. 25 (geometric
 //!   longitude good to ~0.01°, radius to ~1e-5 au), referred to the J2000
@@ -37,7 +37,7 @@ pub const OBLIQUITY_J2000_DEG: f64 = 23.439_291_1;
 /// Earth equatorial radius used by the Almanac's lunar parallax, m.
 pub const EARTH_RADIUS_AA_M: f64 = 6_378_140.0;
 
-/// A UTC calendar instant.
+/// A UTC calendar instant; its time scales come from hifitime.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Utc {
     pub year: i32,
@@ -46,6 +46,7 @@ pub struct Utc {
     pub hour: u32,
     pub minute: u32,
     pub second: f64,
+    epoch: Epoch,
 }
 
 impl Utc {
@@ -112,6 +113,18 @@ impl Utc {
         {
             return Err(bad("field out of range"));
         }
+        let whole = second.floor();
+        let nanos = ((second - whole) * 1e9).round().min(999_999_999.0) as u32;
+        let epoch = Epoch::maybe_from_gregorian_utc(
+            year,
+            month as u8,
+            day as u8,
+            hour as u8,
+            minute as u8,
+            whole as u8,
+            nanos,
+        )
+        .map_err(|_| bad("not a date in the calendar"))?;
         Ok(Utc {
             year,
             month,
@@ -119,64 +132,26 @@ impl Utc {
             hour,
             minute,
             second,
+            epoch,
         })
     }
 
-    /// Julian date on the UTC time scale (Gregorian calendar).
+    /// Julian date on the UTC time scale.
     pub fn jd_utc(&self) -> f64 {
-        let a = (14 - self.month as i64) / 12;
-        let y = self.year as i64 + 4800 - a;
-        let m = self.month as i64 + 12 * a - 3;
-        let jdn = self.day as i64 + (153 * m + 2) / 5 + 365 * y + y / 4 - y / 100 + y / 400 - 32045;
-        jdn as f64 - 0.5
-            + (self.hour as f64 + self.minute as f64 / 60.0 + self.second / 3600.0) / 24.0
+        self.epoch.to_jde_utc_days()
     }
 
-    /// TAI − UTC in seconds (IERS Bulletin C table, 1972 onwards; 37 s since 2017).
+    /// TAI − UTC in whole seconds, from hifitime's UTC → TT conversion
+    /// (its `leap_seconds()` compares on the TAI scale and so reads one
+    /// second high in the last half-minute before a leap second).
     pub fn tai_minus_utc(&self) -> f64 {
-        // (year, month) from which the value applies.
-        const STEPS: [(i32, u32, f64); 28] = [
-            (1972, 1, 10.0),
-            (1972, 7, 11.0),
-            (1973, 1, 12.0),
-            (1974, 1, 13.0),
-            (1975, 1, 14.0),
-            (1976, 1, 15.0),
-            (1977, 1, 16.0),
-            (1978, 1, 17.0),
-            (1979, 1, 18.0),
-            (1980, 1, 19.0),
-            (1981, 7, 20.0),
-            (1982, 7, 21.0),
-            (1983, 7, 22.0),
-            (1985, 7, 23.0),
-            (1988, 1, 24.0),
-            (1990, 1, 25.0),
-            (1991, 1, 26.0),
-            (1992, 7, 27.0),
-            (1993, 7, 28.0),
-            (1994, 7, 29.0),
-            (1996, 1, 30.0),
-            (1997, 7, 31.0),
-            (1999, 1, 32.0),
-            (2006, 1, 33.0),
-            (2009, 1, 34.0),
-            (2012, 7, 35.0),
-            (2015, 7, 36.0),
-            (2017, 1, 37.0),
-        ];
-        let mut v = 10.0;
-        for (y, m, s) in STEPS {
-            if (self.year, self.month) >= (y, m) {
-                v = s;
-            }
-        }
-        v
+        let tt_minus_utc = (self.epoch.to_jde_tt_days() - self.epoch.to_jde_utc_days()) * 86_400.0;
+        (tt_minus_utc - 32.184).round()
     }
 
-    /// Julian date on the TT (≈ TDB) scale: UTC + (TAI − UTC) + 32.184 s.
+    /// Julian date on the TT (≈ TDB) scale.
     pub fn jd_tt(&self) -> f64 {
-        self.jd_utc() + (self.tai_minus_utc() + 32.184) / 86_400.0
+        self.epoch.to_jde_tt_days()
     }
 }
 
