@@ -116,9 +116,7 @@ impl Target {
                 f::geometry::GeometryCalibration::from_csv_bytes(bytes, name, (64, 32)).is_ok()
             }
             Target::Spectrum => {
-                let p = scratch.join("spectrum.csv");
-                std::fs::write(&p, bytes).is_ok()
-                    && crate::radiometry::spectrum::Table::from_csv(&p).is_ok()
+                crate::radiometry::spectrum::Table::from_csv_bytes(bytes, name).is_ok()
             }
             Target::Pds3Label => crate::validate::pds3::Label::parse(bytes, name).is_ok(),
             Target::Pds3Image => crate::validate::pds3::parse_image(bytes, name).is_ok(),

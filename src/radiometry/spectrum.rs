@@ -58,10 +58,15 @@ impl Table {
     /// header. Errors name the file and line.
     pub fn from_csv(path: &Path) -> Result<Self> {
         let bytes = crate::infile::read_bounded(path, crate::infile::TABLE_LIMIT)?;
-        let delimiter = csv_table::sniff_delimiter(&bytes);
+        Table::from_csv_bytes(&bytes, path)
+    }
+
+    /// [`Table::from_csv`] on a file's bytes; `path` names it in errors.
+    pub fn from_csv_bytes(bytes: &[u8], path: &Path) -> Result<Self> {
+        let delimiter = csv_table::sniff_delimiter(bytes);
         let mut wavelengths = Vec::new();
         let mut values = Vec::new();
-        for (index, row) in csv_table::rows(path, &bytes, delimiter).enumerate() {
+        for (index, row) in csv_table::rows(path, bytes, delimiter).enumerate() {
             let row = row?;
             let err = |msg: String| Error::parse(path, format!("line {}: {msg}", row.line));
             // Runs of spaces leave empty cells between the numbers.
