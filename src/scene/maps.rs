@@ -279,7 +279,10 @@ impl EquirectMap {
             } else {
                 0.5
             };
-            *v = (lo + t.powf(power) * (hi - lo)) as f32;
+            // power 1 skips powf: the default stays bit-identical to a
+            // linear stretch.
+            let bent = if power == 1.0 { t } else { t.powf(power) };
+            *v = (lo + bent * (hi - lo)) as f32;
         }
     }
 
