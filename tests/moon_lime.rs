@@ -218,8 +218,9 @@ const LIBRATIONS: [(f64, f64, f64); 3] = [(0.0, 0.0, 0.0), (6.5, -7.5, 1.5), (-6
 /// The tolerance, 2 %, without libration. At the extreme
 /// librations (observer at (±6.5°, ∓7.5°)) the fitted model misses it at
 /// 60–90° phase, by up to 2.75 % (1020 nm, 75°, waning; docs/MOON.md):
-/// 3 % there, a known miss of the 2 % target. Every point over 2 % is
-/// printed.
+/// 3 % there, a known miss of the 2 % target (a power on the map, tried
+/// as a second map parameter, does not close it). Every point over 2 %
+/// is printed.
 fn tolerance(lat: f64) -> f64 {
     if lat == 0.0 {
         0.02

@@ -91,11 +91,19 @@ fn spectral_body_keys_name_their_errors() {
     };
     assert!(Scene::from_toml(&hapke("[[400.0, 0.2], [900.0, 0.3]]"), Path::new("ok.toml")).is_ok());
     let map = "albedo_map = { path = \"../data/maps/lroc_color_poles_2k.tif\", min = 0.1, max = 0.2, encoding = \"gamma\" }\n";
+    let map_power = |p: &str| {
+        format!("albedo_map = {{ path = \"../data/maps/lroc_color_poles_2k.tif\", min = 0.1, max = 0.2, power = {p} }}\n")
+    };
     let cases: Vec<(&str, String, &str)> = vec![
         ("b table out of range", hapke("[[400.0, 0.2], [900.0, 1.5]]"), "body.reflectance.b"),
         ("b table not increasing", hapke("[[900.0, 0.2], [400.0, 0.3]]"), "body.reflectance.b"),
         ("b table empty", hapke("[]"), "body.reflectance.b"),
         ("unknown encoding", good.replace("reflectance = { model", &format!("{map}reflectance = {{ model")), "gamma"),
+        ("map power 0", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("0.0"))), "body.albedo_map.power"),
+        ("map power negative", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("-1.5"))), "body.albedo_map.power"),
+        ("map power NaN", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("nan"))), "body.albedo_map.power"),
+        ("map power 1e9", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("1e9"))), "body.albedo_map.power"),
+        ("map power a string", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("\"2\""))), "power"),
         ("albedo spectrum negative", good.replace("reflectance = { model", "albedo_spectrum = [[400.0, -1.0], [500.0, 1.0]]\nreflectance = { model"), "body.albedo_spectrum"),
         ("albedo spectrum one row", good.replace("reflectance = { model", "albedo_spectrum = [[400.0, 1.0]]\nreflectance = { model"), "body.albedo_spectrum"),
         ("energy transmission", good.replace("band = [450e-9, 820e-9]", "band = [450e-9, 820e-9]\ntransmission = { path = \"../data/amie/qe_assumed.csv\", normalisation = \"energy\" }"), "camera.transmission"),
@@ -182,6 +190,47 @@ mod spectral_tables {
                     let e = e.to_string();
                     prop_assert!(e.contains("prop.toml"), "{}", e);
                     prop_assert!(e.contains("body."), "{}", e);
+                }
+            }
+        }
+    }
+}
+
+mod map_power {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Any `albedo_map.power` (and any min/max): Ok with every map value
+        /// finite and within [min, max], or an error naming the key.
+        #[test]
+        fn any_power_is_ok_or_a_named_error(
+            power in prop_oneof![-20.0f64..20.0, Just(f64::NAN), Just(f64::INFINITY), Just(1e-300), Just(0.1), Just(10.0)],
+            lo in -0.5f64..1.0, span in -0.5f64..1.0,
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            let pixels: Vec<u8> = vec![0, 1, 37, 128, 200, 255, 255, 3];
+            image::GrayImage::from_raw(4, 2, pixels).unwrap().save(dir.path().join("m.png")).unwrap();
+            let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 100.0).toml();
+            let hi = lo + span;
+            let power = if power.is_nan() { "nan".to_string() } else if power.is_infinite() { "inf".to_string() } else { format!("{power:e}") };
+            let text = good.replace(
+                "reflectance = { model",
+                &format!("albedo_map = {{ path = \"m.png\", min = {lo:e}, max = {hi:e}, power = {power} }}\nreflectance = {{ model"),
+            );
+            match Scene::from_toml(&text, &dir.path().join("prop.toml")) {
+                Ok(scene) => {
+                    let map = scene.body.albedo_map.unwrap();
+                    for v in &map.data {
+                        let v = *v as f64;
+                        prop_assert!(v.is_finite() && v >= lo - 1e-6 && v <= hi + 1e-6, "{} not in [{}, {}]", v, lo, hi);
+                    }
+                }
+                Err(e) => {
+                    let e = e.to_string();
+                    prop_assert!(e.contains("prop.toml"), "{}", e);
+                    prop_assert!(e.contains("body.albedo_map"), "{}", e);
                 }
             }
         }

@@ -262,6 +262,14 @@ impl EquirectMap {
     /// Map every value linearly so that the map's own range becomes
     /// [lo, hi].
     pub fn stretch(&mut self, lo: f64, hi: f64) {
+        self.stretch_power(lo, hi, 1.0);
+    }
+
+    /// Normalise the map's own range to t ∈ [0, 1], then set every value
+    /// to lo + t^power · (hi − lo): a power ≠ 1 changes the contrast
+    /// between dark and bright terrain (maria and highlands) without
+    /// moving the ends. Applied once at load, so a render pays nothing.
+    pub fn stretch_power(&mut self, lo: f64, hi: f64, power: f64) {
         self.sat.take();
         let (a, b) = self.range();
         let span = (b - a) as f64;
@@ -271,7 +279,10 @@ impl EquirectMap {
             } else {
                 0.5
             };
-            *v = (lo + t * (hi - lo)) as f32;
+            // power 1 skips powf: the default stays bit-identical to a
+            // linear stretch.
+            let bent = if power == 1.0 { t } else { t.powf(power) };
+            *v = (lo + bent * (hi - lo)) as f32;
         }
     }
 
@@ -597,6 +608,30 @@ mod tests {
                 m.sample(lat, lon)
             );
         }
+    }
+
+    #[test]
+    fn power_stretch_keeps_the_ends_and_bends_the_middle() {
+        // Values 2, 3, 4, 6: normalised t = 0, ¼, ½, 1.
+        let raw = vec![2.0f32, 3.0, 4.0, 6.0];
+        for power in [1.0, 0.5, 1.7, 3.0] {
+            let mut m = EquirectMap::new(2, 2, raw.clone());
+            m.stretch_power(0.2, 0.9, power);
+            for (v, t) in m.data.iter().zip([0.0f64, 0.25, 0.5, 1.0]) {
+                let want = 0.2 + 0.7 * t.powf(power);
+                assert!(
+                    (*v as f64 - want).abs() < 1e-6,
+                    "power {power}: {v} vs {want}"
+                );
+            }
+        }
+        let (mut a, mut b) = (
+            EquirectMap::new(2, 2, raw.clone()),
+            EquirectMap::new(2, 2, raw),
+        );
+        a.stretch(0.1, 0.5);
+        b.stretch_power(0.1, 0.5, 1.0);
+        assert_eq!(a.data, b.data);
     }
 
     #[test]

@@ -310,9 +310,20 @@ struct AlbedoMapFile {
     path: PathBuf,
     min: f64,
     max: f64,
+    /// Power on the normalised map before the stretch (1: linear).
+    #[serde(default = "unit_power")]
+    power: f64,
     #[serde(default)]
     encoding: MapEncoding,
 }
+
+fn unit_power() -> f64 {
+    1.0
+}
+
+/// Range of `albedo_map.power`: wide enough for any contrast law, narrow
+/// enough that t^power stays representable in f32 for every map value.
+const MAP_POWER_RANGE: (f64, f64) = (0.1, 10.0);
 
 /// How an albedo map's 8/16-bit values encode light.
 #[derive(Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -622,6 +633,13 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
                     "need finite 0 <= min <= max",
                 ));
             }
+            let (p_lo, p_hi) = MAP_POWER_RANGE;
+            if !(m.power >= p_lo && m.power <= p_hi) {
+                return Err(Error::invalid(
+                    "body.albedo_map.power",
+                    format!("need {p_lo} <= power <= {p_hi}, got {}", m.power),
+                ));
+            }
             let mut map = match m.encoding {
                 MapEncoding::Linear => load_map(body_base, &m.path, "body.albedo_map.path")?,
                 MapEncoding::Srgb => {
@@ -630,7 +648,7 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
                         .map_err(|e| Error::invalid("body.albedo_map.path", e.to_string()))?
                 }
             };
-            map.stretch(lo, hi);
+            map.stretch_power(lo, hi, m.power);
             Some(map)
         }
         None => None,
