@@ -1,5 +1,6 @@
 //! The subcommands' bodies: argument handling around the library.
 
+pub mod bench_plot;
 pub mod calibrate;
 pub mod plot_log;
 
@@ -50,7 +51,7 @@ pub fn render(scene_path: &Path, out: &Path, caps_per_pixel: Option<f64>) -> Res
 }
 
 #[derive(Serialize)]
-struct BenchRow {
+pub(crate) struct BenchRow {
     phase_deg: f64,
     interior: Interior,
     caps_per_pixel: f64,
@@ -134,6 +135,7 @@ pub fn bench(
     sweep: &BenchSweep,
     repeats: usize,
     json: Option<&Path>,
+    plot: Option<&Path>,
 ) -> Result<()> {
     let BenchSweep {
         phases,
@@ -282,6 +284,19 @@ pub fn bench(
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(&rows)?)
             .with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(plot) = plot {
+        let path = bench_plot::figure_path(plot)?;
+        let name = scene_path.file_name().unwrap_or_default().to_string_lossy();
+        let what = format!(
+            "{name}, {}×{} px, {}, {} threads",
+            pin.width,
+            pin.height,
+            base.body.reflectance.name(),
+            rayon::current_num_threads()
+        );
+        bench_plot::write_bench_figure(&path, &rows, &what)?;
+        tracing::info!("wrote {}", path.display());
     }
     Ok(())
 }

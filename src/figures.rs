@@ -44,6 +44,8 @@ pub enum Mark {
     Line,
     /// Filled circles.
     Points,
+    /// Filled circles joined by a line.
+    LinePoints,
 }
 
 /// One named series of `(x, y)` points.
@@ -71,6 +73,16 @@ impl Series {
             label: label.into(),
             points,
             mark: Mark::Points,
+            colour: None,
+        }
+    }
+
+    /// Points joined by a line, in the order given.
+    pub fn line_points(label: impl Into<String>, points: Vec<(f64, f64)>) -> Series {
+        Series {
+            label: label.into(),
+            points,
+            mark: Mark::LinePoints,
             colour: None,
         }
     }
@@ -175,7 +187,21 @@ fn tick_log(v: f64) -> String {
 /// Draws one panel on `area`. A macro, because plotters' linear and log
 /// charts are different types with the same drawing calls.
 macro_rules! draw_panel {
-    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr, $xf:expr, $yf:expr) => {{
+    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr, $xf:expr, $yf:expr) => {
+        draw_panel!(
+            $area,
+            $caption,
+            $x,
+            $y,
+            $x_label,
+            $panel,
+            $err,
+            $xf,
+            $yf,
+            SeriesLabelPosition::UpperLeft
+        )
+    };
+    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr, $xf:expr, $yf:expr, $legend:expr) => {{
         let mut builder = ChartBuilder::on($area);
         if let Some(c) = $caption {
             builder.caption(c, (FONT_NAME, 22));
@@ -206,6 +232,15 @@ macro_rules! draw_panel {
                     pts.into_iter()
                         .map(move |p| Circle::new(p, 3, colour.filled())),
                 ),
+                Mark::LinePoints => {
+                    chart
+                        .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
+                        .map_err(|e| $err(e.to_string()))?;
+                    chart.draw_series(
+                        pts.into_iter()
+                            .map(move |p| Circle::new(p, 4, colour.filled())),
+                    )
+                }
             }
             .map_err(|e| $err(e.to_string()))?;
             if !s.label.is_empty() {
@@ -221,7 +256,7 @@ macro_rules! draw_panel {
                 .label_font((FONT_NAME, 14))
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
-                .position(SeriesLabelPosition::UpperLeft)
+                .position($legend)
                 .draw()
                 .map_err(|e| $err(e.to_string()))?;
         }
@@ -297,6 +332,118 @@ pub fn curve_figure(path: impl AsRef<Path>, fig: &CurveFigure) -> Result<()> {
         None => panel_on(&root, Some(&fig.title), x, &fig.x_label, &fig.main, path)?,
     }
     root.present().map_err(|e| err(e.to_string()))?;
+    Ok(())
+}
+
+/// Panels side by side, each with a logarithmic x axis (shared range) and
+/// its own y axis (logarithmic where the panel says so): e.g. time against
+/// several error measures.
+#[derive(Debug, Clone)]
+pub struct LogXPanels {
+    pub title: String,
+    pub x_label: String,
+    pub panels: Vec<Panel>,
+    /// Pixels.
+    pub size: (u32, u32),
+}
+
+/// Writes side-by-side log-x panels as PNG.
+pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
+    let path = path.as_ref();
+    let root = canvas(path, fig.size)?;
+    let err = draw_err(path);
+    let xs = fig
+        .panels
+        .iter()
+        .flat_map(|p| p.series.iter())
+        .flat_map(|s| s.points.iter().map(|p| p.0))
+        .filter(|x| x.is_finite() && *x > 0.0);
+    let (x0, x1) = span(xs, true);
+    // plotters labels a log axis from its first power of ten up: make sure
+    // there is one.
+    let x = if floor_decade(x1) < x0 {
+        (floor_decade(x0), x1)
+    } else {
+        (x0, x1)
+    };
+    let body = root
+        .titled(&fig.title, (FONT_NAME, 22))
+        .map_err(|e| err(e.to_string()))?;
+    let areas = body.split_evenly((1, fig.panels.len().max(1)));
+    for (area, panel) in areas.iter().zip(&fig.panels) {
+        log_x_panel_on(area, x, &fig.x_label, panel, path)?;
+    }
+    present(&root, path)
+}
+
+/// The power of ten at or below `v` (> 0), less a hair so that plotters'
+/// own rounding of its logarithm keeps it on the axis.
+fn floor_decade(v: f64) -> f64 {
+    10f64.powf(v.log10().floor()) * (1.0 - 1e-9)
+}
+
+fn log_x_panel_on(
+    area: &Area,
+    x: (f64, f64),
+    x_label: &str,
+    panel: &Panel,
+    path: &Path,
+) -> Result<()> {
+    let err = draw_err(path);
+    // Non-positive x cannot sit on a log axis.
+    let positive_x = Panel {
+        series: panel
+            .series
+            .iter()
+            .map(|s| Series {
+                points: s.points.iter().copied().filter(|p| p.0 > 0.0).collect(),
+                ..s.clone()
+            })
+            .collect(),
+        ..panel.clone()
+    };
+    let panel = &positive_x;
+    let ys = panel
+        .series
+        .iter()
+        .flat_map(|s| finite_points(s, panel.log_y))
+        .map(|p| p.1);
+    let (y0, y1) = span(ys, panel.log_y);
+    let xf = |v: &f64| tick_log(*v);
+    let none: Option<&str> = None;
+    // Curves of time against error run from the top left down to the right.
+    let legend = SeriesLabelPosition::UpperRight;
+    if panel.log_y {
+        // Labels start at the first power of ten (see `log_x_panels`).
+        let y0 = floor_decade(y0);
+        let yf = |v: &f64| tick_log(*v);
+        draw_panel!(
+            area,
+            none,
+            (x.0..x.1).log_scale(),
+            (y0..y1).log_scale(),
+            x_label,
+            panel,
+            err,
+            &xf,
+            &yf,
+            legend
+        );
+    } else {
+        let yf = |v: &f64| tick(*v, y1 - y0);
+        draw_panel!(
+            area,
+            none,
+            (x.0..x.1).log_scale(),
+            y0..y1,
+            x_label,
+            panel,
+            err,
+            &xf,
+            &yf,
+            legend
+        );
+    }
     Ok(())
 }
 
