@@ -313,26 +313,24 @@ fn panel_on(
 pub fn curve_figure(path: impl AsRef<Path>, fig: &CurveFigure) -> Result<()> {
     let path = path.as_ref();
     ensure_font();
-    let err = draw_err(path);
-    let root = BitMapBackend::new(path, fig.size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let xs = fig
-        .main
-        .series
-        .iter()
-        .chain(fig.residuals.iter().flat_map(|p| p.series.iter()))
-        .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
-    let x = span(xs, false);
-    match &fig.residuals {
-        Some(res) => {
-            let (top, bottom) = root.split_vertically(fig.size.1 * 65 / 100);
-            panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
-            panel_on(&bottom, None, x, &fig.x_label, res, path)?;
+    draw_png(path, fig.size, |root| {
+        let xs = fig
+            .main
+            .series
+            .iter()
+            .chain(fig.residuals.iter().flat_map(|p| p.series.iter()))
+            .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
+        let x = span(xs, false);
+        match &fig.residuals {
+            Some(res) => {
+                let (top, bottom) = root.split_vertically(fig.size.1 * 65 / 100);
+                panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
+                panel_on(&bottom, None, x, &fig.x_label, res, path)?;
+            }
+            None => panel_on(root, Some(&fig.title), x, &fig.x_label, &fig.main, path)?,
         }
-        None => panel_on(&root, Some(&fig.title), x, &fig.x_label, &fig.main, path)?,
-    }
-    root.present().map_err(|e| err(e.to_string()))?;
-    Ok(())
+        Ok(())
+    })
 }
 
 /// Panels side by side, each with a logarithmic x axis (shared range) and
@@ -350,7 +348,6 @@ pub struct LogXPanels {
 /// Writes side-by-side log-x panels as PNG.
 pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
     let path = path.as_ref();
-    let root = canvas(path, fig.size)?;
     let err = draw_err(path);
     let xs = fig
         .panels
@@ -366,14 +363,16 @@ pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
     } else {
         (x0, x1)
     };
-    let body = root
-        .titled(&fig.title, (FONT_NAME, 22))
-        .map_err(|e| err(e.to_string()))?;
-    let areas = body.split_evenly((1, fig.panels.len().max(1)));
-    for (area, panel) in areas.iter().zip(&fig.panels) {
-        log_x_panel_on(area, x, &fig.x_label, panel, path)?;
-    }
-    present(&root, path)
+    draw_png(path, fig.size, |root| {
+        let body = root
+            .titled(&fig.title, (FONT_NAME, 22))
+            .map_err(|e| err(e.to_string()))?;
+        let areas = body.split_evenly((1, fig.panels.len().max(1)));
+        for (area, panel) in areas.iter().zip(&fig.panels) {
+            log_x_panel_on(area, x, &fig.x_label, panel, path)?;
+        }
+        Ok(())
+    })
 }
 
 /// The power of ten at or below `v` (> 0), less a hair so that plotters'
@@ -567,20 +566,18 @@ pub struct CurveAndHistogram {
 pub fn curve_and_histogram(path: impl AsRef<Path>, fig: &CurveAndHistogram) -> Result<()> {
     let path = path.as_ref();
     ensure_font();
-    let err = draw_err(path);
-    let root = BitMapBackend::new(path, fig.size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let xs = fig
-        .main
-        .series
-        .iter()
-        .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
-    let x = span(xs, false);
-    let (top, bottom) = root.split_vertically(fig.size.1 * 58 / 100);
-    panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
-    histogram_on(&bottom, &fig.histogram, path)?;
-    root.present().map_err(|e| err(e.to_string()))?;
-    Ok(())
+    draw_png(path, fig.size, |root| {
+        let xs = fig
+            .main
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
+        let x = span(xs, false);
+        let (top, bottom) = root.split_vertically(fig.size.1 * 58 / 100);
+        panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
+        histogram_on(&bottom, &fig.histogram, path)?;
+        Ok(())
+    })
 }
 
 /// Perceptually ordered colour map (viridis control points, linear
@@ -674,48 +671,47 @@ pub fn heatmap(path: impl AsRef<Path>, h: &Heatmap) -> Result<()> {
     let (nw, step, cells) = downsample(h, 240);
     let (vmin, vmax) = span(cells.iter().copied().filter(|v| v.is_finite()), false);
     let norm = |v: f64| (v - vmin) / (vmax - vmin);
-    let root = BitMapBackend::new(path, h.size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let (main, bar) = root.split_horizontally(h.size.0 * 80 / 100);
-    let (w, hh) = (h.width as f64, h.height as f64);
-    let mut chart = ChartBuilder::on(&main)
-        .caption(&h.title, (FONT_NAME, 22))
-        .margin(12)
-        .x_label_area_size(42)
-        .y_label_area_size(70)
-        .build_cartesian_2d(0.0..w, -hh..0.0)
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .configure_mesh()
-        .disable_mesh()
-        .x_desc(h.x_label.as_str())
-        .y_desc(h.y_label.as_str())
-        .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
-        .label_style((FONT_NAME, 14))
-        .axis_desc_style((FONT_NAME, 16))
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
-    let s = step as f64;
-    chart
-        .draw_series(cells.iter().enumerate().map(|(k, &v)| {
-            let (i, j) = ((k % nw) as f64, (k / nw) as f64);
-            let colour = if v.is_finite() {
-                viridis(norm(v))
-            } else {
-                WHITE
-            };
-            Rectangle::new(
-                [
-                    (i * s, -j * s),
-                    (((i + 1.0) * s).min(w), -((j + 1.0) * s).min(hh)),
-                ],
-                colour.filled(),
-            )
-        }))
-        .map_err(|e| err(e.to_string()))?;
-    colour_bar(&bar, (vmin, vmax), ColourMap::Viridis, &h.value_label, path)?;
-    root.present().map_err(|e| err(e.to_string()))?;
-    Ok(())
+    draw_png(path, h.size, |root| {
+        let (main, bar) = root.split_horizontally(h.size.0 * 80 / 100);
+        let (w, hh) = (h.width as f64, h.height as f64);
+        let mut chart = ChartBuilder::on(&main)
+            .caption(&h.title, (FONT_NAME, 22))
+            .margin(12)
+            .x_label_area_size(42)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..w, -hh..0.0)
+            .map_err(|e| err(e.to_string()))?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc(h.x_label.as_str())
+            .y_desc(h.y_label.as_str())
+            .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
+            .label_style((FONT_NAME, 14))
+            .axis_desc_style((FONT_NAME, 16))
+            .draw()
+            .map_err(|e| err(e.to_string()))?;
+        let s = step as f64;
+        chart
+            .draw_series(cells.iter().enumerate().map(|(k, &v)| {
+                let (i, j) = ((k % nw) as f64, (k / nw) as f64);
+                let colour = if v.is_finite() {
+                    viridis(norm(v))
+                } else {
+                    WHITE
+                };
+                Rectangle::new(
+                    [
+                        (i * s, -j * s),
+                        (((i + 1.0) * s).min(w), -((j + 1.0) * s).min(hh)),
+                    ],
+                    colour.filled(),
+                )
+            }))
+            .map_err(|e| err(e.to_string()))?;
+        colour_bar(&bar, (vmin, vmax), ColourMap::Viridis, &h.value_label, path)?;
+        Ok(())
+    })
 }
 
 fn colour_bar(
@@ -793,18 +789,26 @@ impl ColourMap {
 /// A drawing area of a figure being built.
 pub type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
-/// A white canvas of `size` pixels writing to `path` on [`present`].
-pub fn canvas(path: &Path, size: (u32, u32)) -> Result<Area<'_>> {
+/// Draws a figure of `size` pixels with `draw` on a white canvas and
+/// writes it to `path` as PNG, through `image` (so plotters needs no image
+/// encoder of its own, and the build one `image` version).
+pub fn draw_png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&Area) -> Result<()>,
+) -> Result<()> {
     ensure_font();
-    let root = BitMapBackend::new(path, size).into_drawing_area();
-    root.fill(&WHITE)
-        .map_err(|e| draw_err(path)(e.to_string()))?;
-    Ok(root)
-}
-
-/// Writes the canvas to its file.
-pub fn present(root: &Area, path: &Path) -> Result<()> {
-    root.present().map_err(|e| draw_err(path)(e.to_string()))
+    let err = draw_err(path);
+    let mut buf = vec![255u8; size.0 as usize * size.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(|e| err(e.to_string()))?;
+    }
+    let img = image::RgbImage::from_raw(size.0, size.1, buf)
+        .ok_or_else(|| err("canvas size mismatch".into()))?;
+    img.save_with_format(path, image::ImageFormat::Png)
+        .map_err(|e| Error::Other(format!("{}: cannot write figure: {e}", path.display())))
 }
 
 /// Lines of text from the top-left of `area`, `font_px` high.
@@ -996,61 +1000,60 @@ pub fn quiver(path: impl AsRef<Path>, q: &Quiver) -> Result<()> {
     if !(x1 > x0 && y1 > y0 && q.scale.is_finite() && q.scale > 0.0) {
         return Err(err("empty extent or non-positive scale".into()));
     }
-    let root = BitMapBackend::new(path, q.size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(&q.title, (FONT_NAME, 22))
-        .margin(12)
-        .margin_top(44)
-        .x_label_area_size(42)
-        .y_label_area_size(70)
-        .build_cartesian_2d(x0..x1, -y1..-y0)
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .configure_mesh()
-        .x_desc(q.x_label.as_str())
-        .y_desc(q.y_label.as_str())
-        .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
-        .label_style((FONT_NAME, 14))
-        .axis_desc_style((FONT_NAME, 16))
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
-    let colour = PALETTE[0];
-    for a in q
-        .arrows
-        .iter()
-        .filter(|a| [a.x, a.y, a.dx, a.dy].iter().all(|v| v.is_finite()))
-    {
-        let lines = arrow_lines(a.x, a.y, a.dx * q.scale, a.dy * q.scale);
+    draw_png(path, q.size, |root| {
+        let mut chart = ChartBuilder::on(root)
+            .caption(&q.title, (FONT_NAME, 22))
+            .margin(12)
+            .margin_top(44)
+            .x_label_area_size(42)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, -y1..-y0)
+            .map_err(|e| err(e.to_string()))?;
         chart
-            .draw_series(
-                lines
-                    .into_iter()
-                    .map(|l| PathElement::new(l, colour.stroke_width(1))),
-            )
+            .configure_mesh()
+            .x_desc(q.x_label.as_str())
+            .y_desc(q.y_label.as_str())
+            .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
+            .label_style((FONT_NAME, 14))
+            .axis_desc_style((FONT_NAME, 16))
+            .draw()
             .map_err(|e| err(e.to_string()))?;
-    }
-    // Key: an arrow of the key length in the top margin, above the plot,
-    // so it never hides an arrow.
-    let area = chart.plotting_area();
-    let (pw, _) = area.dim_in_pixel();
-    let (bx, by) = area.get_base_pixel();
-    let klen = (q.key.0 * q.scale * pw as f64 / (x1 - x0)).round();
-    let key_colour = PALETTE[1];
-    let (kx, ky) = (bx as f64 + 10.0, by as f64 - 14.0);
-    for l in arrow_lines(kx, ky, klen, 0.0) {
-        let px: Vec<(i32, i32)> = l.iter().map(|&(x, y)| (x as i32, -y as i32)).collect();
-        root.draw(&PathElement::new(px, key_colour.stroke_width(2)))
-            .map_err(|e| err(e.to_string()))?;
-    }
-    root.draw(&Text::new(
-        format!("key: {}", q.key.1),
-        ((kx + klen + 10.0) as i32, (ky - 8.0) as i32),
-        (FONT_NAME, 14).into_font().color(&key_colour),
-    ))
-    .map_err(|e| err(e.to_string()))?;
-    root.present().map_err(|e| err(e.to_string()))?;
-    Ok(())
+        let colour = PALETTE[0];
+        for a in q
+            .arrows
+            .iter()
+            .filter(|a| [a.x, a.y, a.dx, a.dy].iter().all(|v| v.is_finite()))
+        {
+            let lines = arrow_lines(a.x, a.y, a.dx * q.scale, a.dy * q.scale);
+            chart
+                .draw_series(
+                    lines
+                        .into_iter()
+                        .map(|l| PathElement::new(l, colour.stroke_width(1))),
+                )
+                .map_err(|e| err(e.to_string()))?;
+        }
+        // Key: an arrow of the key length in the top margin, above the plot,
+        // so it never hides an arrow.
+        let area = chart.plotting_area();
+        let (pw, _) = area.dim_in_pixel();
+        let (bx, by) = area.get_base_pixel();
+        let klen = (q.key.0 * q.scale * pw as f64 / (x1 - x0)).round();
+        let key_colour = PALETTE[1];
+        let (kx, ky) = (bx as f64 + 10.0, by as f64 - 14.0);
+        for l in arrow_lines(kx, ky, klen, 0.0) {
+            let px: Vec<(i32, i32)> = l.iter().map(|&(x, y)| (x as i32, -y as i32)).collect();
+            root.draw(&PathElement::new(px, key_colour.stroke_width(2)))
+                .map_err(|e| err(e.to_string()))?;
+        }
+        root.draw(&Text::new(
+            format!("key: {}", q.key.1),
+            ((kx + klen + 10.0) as i32, (ky - 8.0) as i32),
+            (FONT_NAME, 14).into_font().color(&key_colour),
+        ))
+        .map_err(|e| err(e.to_string()))?;
+        Ok(())
+    })
 }
 
 #[cfg(test)]
