@@ -200,6 +200,7 @@ fn plot(path: &Path, residuals: &[Vec<[f64; 2]>]) -> anyhow::Result<()> {
         .label_font(("sans-serif", 15))
         .draw()?;
     root.present()?;
+    drop(chart);
     drop(root);
     image::RgbImage::from_raw(size.0, size.1, buf)
         .ok_or_else(|| anyhow::anyhow!("canvas size mismatch"))?

@@ -117,7 +117,7 @@ pub fn figure_path(plot: &Path) -> Result<PathBuf> {
 /// parameter: the first of caps per pixel, node spacing, pixel tolerance,
 /// map samples that takes several values), as `(label, rows)` with the
 /// rows in sweep order.
-fn families<'a>(rows: &'a [BenchRow]) -> (Option<&'static str>, Vec<(String, Vec<&'a BenchRow>)>) {
+fn families(rows: &[BenchRow]) -> (Option<&'static str>, Vec<Family<'_>>) {
     let settings: Vec<Setting> = rows.iter().map(Setting::of).collect();
     let along = AXES[..4].iter().position(|a| varies(a, &settings));
     let keyed: Vec<&Axis> = AXES
@@ -146,6 +146,9 @@ fn families<'a>(rows: &'a [BenchRow]) -> (Option<&'static str>, Vec<(String, Vec
     (along.map(|i| AXES[i].name), families)
 }
 
+/// A curve's label and its rows.
+type Family<'a> = (String, Vec<&'a BenchRow>);
+
 /// A horizontal target line over `x` and a vertical one over `y`.
 fn target_lines(x: (f64, f64), y: (f64, f64), y_target: f64, y_label: &str) -> [Series; 2] {
     [
@@ -163,12 +166,7 @@ fn target_lines(x: (f64, f64), y: (f64, f64), y_target: f64, y_label: &str) -> [
 }
 
 /// One panel: error measure `error` [%] against the median time.
-fn panel(
-    fams: &[(String, Vec<&BenchRow>)],
-    y_label: &str,
-    error: fn(&BenchRow) -> f64,
-    target: f64,
-) -> Panel {
+fn panel(fams: &[Family], y_label: &str, error: fn(&BenchRow) -> f64, target: f64) -> Panel {
     let all = fams.iter().flat_map(|f| f.1.iter());
     let (mut x0, mut x1) = (TARGET_MS, TARGET_MS);
     let (mut y0, mut y1) = (target, target);
