@@ -132,8 +132,11 @@ fn plot(path: &Path, residuals: &[Vec<[f64; 2]>]) -> anyhow::Result<()> {
         include_bytes!("../data/fonts/DejaVuSans.ttf"),
     )
     .map_err(|_| anyhow::anyhow!("bundled font unreadable"))?;
-    let root = BitMapBackend::new(path, (1100, 650)).into_drawing_area();
-    root.fill(&WHITE)?;
+    // Drawn into a buffer and saved through `image` (plotters' own encoder
+    // is not built).
+    let size = (1100u32, 650u32);
+    let mut buf = vec![255u8; (size.0 * size.1 * 3) as usize];
+    let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
     let mut chart = ChartBuilder::on(&root)
         .caption(
             "Bundled Moon vs LIME: disk reflectance residual by phase and band",
@@ -197,5 +200,10 @@ fn plot(path: &Path, residuals: &[Vec<[f64; 2]>]) -> anyhow::Result<()> {
         .label_font(("sans-serif", 15))
         .draw()?;
     root.present()?;
+    drop(chart);
+    drop(root);
+    image::RgbImage::from_raw(size.0, size.1, buf)
+        .ok_or_else(|| anyhow::anyhow!("canvas size mismatch"))?
+        .save_with_format(path, image::ImageFormat::Png)?;
     Ok(())
 }

@@ -1,5 +1,6 @@
 //! The subcommands' bodies: argument handling around the library.
 
+pub mod bench_plot;
 pub mod calibrate;
 pub mod plot_log;
 
@@ -50,7 +51,7 @@ pub fn render(scene_path: &Path, out: &Path, caps_per_pixel: Option<f64>) -> Res
 }
 
 #[derive(Serialize)]
-struct BenchRow {
+pub(crate) struct BenchRow {
     phase_deg: f64,
     interior: Interior,
     caps_per_pixel: f64,
@@ -134,6 +135,7 @@ pub fn bench(
     sweep: &BenchSweep,
     repeats: usize,
     json: Option<&Path>,
+    plot: Option<&Path>,
 ) -> Result<()> {
     let BenchSweep {
         phases,
@@ -172,7 +174,15 @@ pub fn bench(
     );
     println!("| phase [deg] | interior | caps/px | map samples | node spacing | pixel tol. | caps | integrated | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let per_phase = modes.len()
+        * densities.len()
+        * texture_samples.len()
+        * node_spacings.len()
+        * pixel_tolerances.len();
+    // One step per reference render and per timed setting.
+    let progress = optistim::progress::bar((phases.len() * (per_phase + 1)) as u64, "bench");
     for &phase in phases {
+        progress.set_message(format!("{phase}° reference"));
         let mut scene = base.clone();
         at_phase(&mut scene, phase);
         // Reference: 16× the sample density of the densest setting (4× per axis).
@@ -182,6 +192,7 @@ pub fn bench(
         settings.min_caps = settings.min_caps.max(256);
         settings.interior = Interior::Caps;
         renderer.render_flux(&scene.body, &scene.state, &settings, None);
+        progress.inc(1);
         let reference: Vec<f32> = renderer.flux().to_vec();
         let ref_total: f64 = reference.iter().map(|&v| v as f64).sum();
         let ref_peak = reference.iter().cloned().fold(0.0f32, f32::max) as f64;
@@ -202,6 +213,7 @@ pub fn bench(
             settings.interior = mode;
             settings.texture_samples = samples;
             settings.check()?;
+            progress.set_message(format!("{phase}° {mode:?} {density} caps/px"));
             let mut times = Vec::with_capacity(repeats);
             let mut stages: [Vec<f64>; 4] = Default::default();
             let mut caps = 0;
@@ -259,7 +271,8 @@ pub fn bench(
                 stage_median_ms,
             };
             let [lay, mask, cap, int] = stage_median_ms;
-            println!(
+            // The bar steps aside while the row is printed.
+            progress.suspend(|| println!(
                 "| {:.0} | {:?} | {} | {}×{} | {spacing} | {tolerance:.0e} | {} | {} | {} | {:.2} | {:.2} | {lay:.2} / {mask:.2} / {cap:.2} / {int:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
                 row.phase_deg,
                 row.interior,
@@ -275,13 +288,28 @@ pub fn bench(
                 row.pixel_error_p50,
                 row.pixel_error_p99,
                 row.pixel_error_max
-            );
+            ));
+            progress.inc(1);
             rows.push(row);
         }
     }
+    progress.finish_and_clear();
     if let Some(path) = json {
         std::fs::write(path, serde_json::to_string_pretty(&rows)?)
             .with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(plot) = plot {
+        let path = bench_plot::figure_path(plot)?;
+        let name = scene_path.file_name().unwrap_or_default().to_string_lossy();
+        let what = format!(
+            "{name}, {}×{} px, {}, {} threads",
+            pin.width,
+            pin.height,
+            base.body.reflectance.name(),
+            rayon::current_num_threads()
+        );
+        bench_plot::write_bench_figure(&path, &rows, &what)?;
+        tracing::info!("wrote {}", path.display());
     }
     Ok(())
 }

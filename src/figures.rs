@@ -44,6 +44,8 @@ pub enum Mark {
     Line,
     /// Filled circles.
     Points,
+    /// Filled circles joined by a line.
+    LinePoints,
 }
 
 /// One named series of `(x, y)` points.
@@ -71,6 +73,16 @@ impl Series {
             label: label.into(),
             points,
             mark: Mark::Points,
+            colour: None,
+        }
+    }
+
+    /// Points joined by a line, in the order given.
+    pub fn line_points(label: impl Into<String>, points: Vec<(f64, f64)>) -> Series {
+        Series {
+            label: label.into(),
+            points,
+            mark: Mark::LinePoints,
             colour: None,
         }
     }
@@ -175,7 +187,21 @@ fn tick_log(v: f64) -> String {
 /// Draws one panel on `area`. A macro, because plotters' linear and log
 /// charts are different types with the same drawing calls.
 macro_rules! draw_panel {
-    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr, $xf:expr, $yf:expr) => {{
+    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr, $xf:expr, $yf:expr) => {
+        draw_panel!(
+            $area,
+            $caption,
+            $x,
+            $y,
+            $x_label,
+            $panel,
+            $err,
+            $xf,
+            $yf,
+            SeriesLabelPosition::UpperLeft
+        )
+    };
+    ($area:expr, $caption:expr, $x:expr, $y:expr, $x_label:expr, $panel:expr, $err:expr, $xf:expr, $yf:expr, $legend:expr) => {{
         let mut builder = ChartBuilder::on($area);
         if let Some(c) = $caption {
             builder.caption(c, (FONT_NAME, 22));
@@ -206,6 +232,15 @@ macro_rules! draw_panel {
                     pts.into_iter()
                         .map(move |p| Circle::new(p, 3, colour.filled())),
                 ),
+                Mark::LinePoints => {
+                    chart
+                        .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
+                        .map_err(|e| $err(e.to_string()))?;
+                    chart.draw_series(
+                        pts.into_iter()
+                            .map(move |p| Circle::new(p, 4, colour.filled())),
+                    )
+                }
             }
             .map_err(|e| $err(e.to_string()))?;
             if !s.label.is_empty() {
@@ -221,7 +256,7 @@ macro_rules! draw_panel {
                 .label_font((FONT_NAME, 14))
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
-                .position(SeriesLabelPosition::UpperLeft)
+                .position($legend)
                 .draw()
                 .map_err(|e| $err(e.to_string()))?;
         }
@@ -278,25 +313,136 @@ fn panel_on(
 pub fn curve_figure(path: impl AsRef<Path>, fig: &CurveFigure) -> Result<()> {
     let path = path.as_ref();
     ensure_font();
+    draw_png(path, fig.size, |root| {
+        let xs = fig
+            .main
+            .series
+            .iter()
+            .chain(fig.residuals.iter().flat_map(|p| p.series.iter()))
+            .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
+        let x = span(xs, false);
+        match &fig.residuals {
+            Some(res) => {
+                let (top, bottom) = root.split_vertically(fig.size.1 * 65 / 100);
+                panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
+                panel_on(&bottom, None, x, &fig.x_label, res, path)?;
+            }
+            None => panel_on(root, Some(&fig.title), x, &fig.x_label, &fig.main, path)?,
+        }
+        Ok(())
+    })
+}
+
+/// Panels side by side, each with a logarithmic x axis (shared range) and
+/// its own y axis (logarithmic where the panel says so): e.g. time against
+/// several error measures.
+#[derive(Debug, Clone)]
+pub struct LogXPanels {
+    pub title: String,
+    pub x_label: String,
+    pub panels: Vec<Panel>,
+    /// Pixels.
+    pub size: (u32, u32),
+}
+
+/// Writes side-by-side log-x panels as PNG.
+pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
+    let path = path.as_ref();
     let err = draw_err(path);
-    let root = BitMapBackend::new(path, fig.size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
     let xs = fig
-        .main
+        .panels
+        .iter()
+        .flat_map(|p| p.series.iter())
+        .flat_map(|s| s.points.iter().map(|p| p.0))
+        .filter(|x| x.is_finite() && *x > 0.0);
+    let (x0, x1) = span(xs, true);
+    // plotters labels a log axis from its first power of ten up: make sure
+    // there is one.
+    let x = if floor_decade(x1) < x0 {
+        (floor_decade(x0), x1)
+    } else {
+        (x0, x1)
+    };
+    draw_png(path, fig.size, |root| {
+        let body = root
+            .titled(&fig.title, (FONT_NAME, 22))
+            .map_err(|e| err(e.to_string()))?;
+        let areas = body.split_evenly((1, fig.panels.len().max(1)));
+        for (area, panel) in areas.iter().zip(&fig.panels) {
+            log_x_panel_on(area, x, &fig.x_label, panel, path)?;
+        }
+        Ok(())
+    })
+}
+
+/// The power of ten at or below `v` (> 0), less a hair so that plotters'
+/// own rounding of its logarithm keeps it on the axis.
+fn floor_decade(v: f64) -> f64 {
+    10f64.powf(v.log10().floor()) * (1.0 - 1e-9)
+}
+
+fn log_x_panel_on(
+    area: &Area,
+    x: (f64, f64),
+    x_label: &str,
+    panel: &Panel,
+    path: &Path,
+) -> Result<()> {
+    let err = draw_err(path);
+    // Non-positive x cannot sit on a log axis.
+    let positive_x = Panel {
+        series: panel
+            .series
+            .iter()
+            .map(|s| Series {
+                points: s.points.iter().copied().filter(|p| p.0 > 0.0).collect(),
+                ..s.clone()
+            })
+            .collect(),
+        ..panel.clone()
+    };
+    let panel = &positive_x;
+    let ys = panel
         .series
         .iter()
-        .chain(fig.residuals.iter().flat_map(|p| p.series.iter()))
-        .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
-    let x = span(xs, false);
-    match &fig.residuals {
-        Some(res) => {
-            let (top, bottom) = root.split_vertically(fig.size.1 * 65 / 100);
-            panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
-            panel_on(&bottom, None, x, &fig.x_label, res, path)?;
-        }
-        None => panel_on(&root, Some(&fig.title), x, &fig.x_label, &fig.main, path)?,
+        .flat_map(|s| finite_points(s, panel.log_y))
+        .map(|p| p.1);
+    let (y0, y1) = span(ys, panel.log_y);
+    let xf = |v: &f64| tick_log(*v);
+    let none: Option<&str> = None;
+    // Curves of time against error run from the top left down to the right.
+    let legend = SeriesLabelPosition::UpperRight;
+    if panel.log_y {
+        // Labels start at the first power of ten (see `log_x_panels`).
+        let y0 = floor_decade(y0);
+        let yf = |v: &f64| tick_log(*v);
+        draw_panel!(
+            area,
+            none,
+            (x.0..x.1).log_scale(),
+            (y0..y1).log_scale(),
+            x_label,
+            panel,
+            err,
+            &xf,
+            &yf,
+            legend
+        );
+    } else {
+        let yf = |v: &f64| tick(*v, y1 - y0);
+        draw_panel!(
+            area,
+            none,
+            (x.0..x.1).log_scale(),
+            y0..y1,
+            x_label,
+            panel,
+            err,
+            &xf,
+            &yf,
+            legend
+        );
     }
-    root.present().map_err(|e| err(e.to_string()))?;
     Ok(())
 }
 
@@ -420,20 +566,18 @@ pub struct CurveAndHistogram {
 pub fn curve_and_histogram(path: impl AsRef<Path>, fig: &CurveAndHistogram) -> Result<()> {
     let path = path.as_ref();
     ensure_font();
-    let err = draw_err(path);
-    let root = BitMapBackend::new(path, fig.size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let xs = fig
-        .main
-        .series
-        .iter()
-        .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
-    let x = span(xs, false);
-    let (top, bottom) = root.split_vertically(fig.size.1 * 58 / 100);
-    panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
-    histogram_on(&bottom, &fig.histogram, path)?;
-    root.present().map_err(|e| err(e.to_string()))?;
-    Ok(())
+    draw_png(path, fig.size, |root| {
+        let xs = fig
+            .main
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
+        let x = span(xs, false);
+        let (top, bottom) = root.split_vertically(fig.size.1 * 58 / 100);
+        panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
+        histogram_on(&bottom, &fig.histogram, path)?;
+        Ok(())
+    })
 }
 
 /// Perceptually ordered colour map (viridis control points, linear
@@ -527,48 +671,47 @@ pub fn heatmap(path: impl AsRef<Path>, h: &Heatmap) -> Result<()> {
     let (nw, step, cells) = downsample(h, 240);
     let (vmin, vmax) = span(cells.iter().copied().filter(|v| v.is_finite()), false);
     let norm = |v: f64| (v - vmin) / (vmax - vmin);
-    let root = BitMapBackend::new(path, h.size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let (main, bar) = root.split_horizontally(h.size.0 * 80 / 100);
-    let (w, hh) = (h.width as f64, h.height as f64);
-    let mut chart = ChartBuilder::on(&main)
-        .caption(&h.title, (FONT_NAME, 22))
-        .margin(12)
-        .x_label_area_size(42)
-        .y_label_area_size(70)
-        .build_cartesian_2d(0.0..w, -hh..0.0)
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .configure_mesh()
-        .disable_mesh()
-        .x_desc(h.x_label.as_str())
-        .y_desc(h.y_label.as_str())
-        .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
-        .label_style((FONT_NAME, 14))
-        .axis_desc_style((FONT_NAME, 16))
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
-    let s = step as f64;
-    chart
-        .draw_series(cells.iter().enumerate().map(|(k, &v)| {
-            let (i, j) = ((k % nw) as f64, (k / nw) as f64);
-            let colour = if v.is_finite() {
-                viridis(norm(v))
-            } else {
-                WHITE
-            };
-            Rectangle::new(
-                [
-                    (i * s, -j * s),
-                    (((i + 1.0) * s).min(w), -((j + 1.0) * s).min(hh)),
-                ],
-                colour.filled(),
-            )
-        }))
-        .map_err(|e| err(e.to_string()))?;
-    colour_bar(&bar, (vmin, vmax), ColourMap::Viridis, &h.value_label, path)?;
-    root.present().map_err(|e| err(e.to_string()))?;
-    Ok(())
+    draw_png(path, h.size, |root| {
+        let (main, bar) = root.split_horizontally(h.size.0 * 80 / 100);
+        let (w, hh) = (h.width as f64, h.height as f64);
+        let mut chart = ChartBuilder::on(&main)
+            .caption(&h.title, (FONT_NAME, 22))
+            .margin(12)
+            .x_label_area_size(42)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..w, -hh..0.0)
+            .map_err(|e| err(e.to_string()))?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc(h.x_label.as_str())
+            .y_desc(h.y_label.as_str())
+            .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
+            .label_style((FONT_NAME, 14))
+            .axis_desc_style((FONT_NAME, 16))
+            .draw()
+            .map_err(|e| err(e.to_string()))?;
+        let s = step as f64;
+        chart
+            .draw_series(cells.iter().enumerate().map(|(k, &v)| {
+                let (i, j) = ((k % nw) as f64, (k / nw) as f64);
+                let colour = if v.is_finite() {
+                    viridis(norm(v))
+                } else {
+                    WHITE
+                };
+                Rectangle::new(
+                    [
+                        (i * s, -j * s),
+                        (((i + 1.0) * s).min(w), -((j + 1.0) * s).min(hh)),
+                    ],
+                    colour.filled(),
+                )
+            }))
+            .map_err(|e| err(e.to_string()))?;
+        colour_bar(&bar, (vmin, vmax), ColourMap::Viridis, &h.value_label, path)?;
+        Ok(())
+    })
 }
 
 fn colour_bar(
@@ -646,18 +789,26 @@ impl ColourMap {
 /// A drawing area of a figure being built.
 pub type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
-/// A white canvas of `size` pixels writing to `path` on [`present`].
-pub fn canvas(path: &Path, size: (u32, u32)) -> Result<Area<'_>> {
+/// Draws a figure of `size` pixels with `draw` on a white canvas and
+/// writes it to `path` as PNG, through `image` (so plotters needs no image
+/// encoder of its own, and the build one `image` version).
+pub fn draw_png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&Area) -> Result<()>,
+) -> Result<()> {
     ensure_font();
-    let root = BitMapBackend::new(path, size).into_drawing_area();
-    root.fill(&WHITE)
-        .map_err(|e| draw_err(path)(e.to_string()))?;
-    Ok(root)
-}
-
-/// Writes the canvas to its file.
-pub fn present(root: &Area, path: &Path) -> Result<()> {
-    root.present().map_err(|e| draw_err(path)(e.to_string()))
+    let err = draw_err(path);
+    let mut buf = vec![255u8; size.0 as usize * size.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(|e| err(e.to_string()))?;
+    }
+    let img = image::RgbImage::from_raw(size.0, size.1, buf)
+        .ok_or_else(|| err("canvas size mismatch".into()))?;
+    img.save_with_format(path, image::ImageFormat::Png)
+        .map_err(|e| Error::Other(format!("{}: cannot write figure: {e}", path.display())))
 }
 
 /// Lines of text from the top-left of `area`, `font_px` high.
@@ -849,61 +1000,60 @@ pub fn quiver(path: impl AsRef<Path>, q: &Quiver) -> Result<()> {
     if !(x1 > x0 && y1 > y0 && q.scale.is_finite() && q.scale > 0.0) {
         return Err(err("empty extent or non-positive scale".into()));
     }
-    let root = BitMapBackend::new(path, q.size).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(&q.title, (FONT_NAME, 22))
-        .margin(12)
-        .margin_top(44)
-        .x_label_area_size(42)
-        .y_label_area_size(70)
-        .build_cartesian_2d(x0..x1, -y1..-y0)
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .configure_mesh()
-        .x_desc(q.x_label.as_str())
-        .y_desc(q.y_label.as_str())
-        .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
-        .label_style((FONT_NAME, 14))
-        .axis_desc_style((FONT_NAME, 16))
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
-    let colour = PALETTE[0];
-    for a in q
-        .arrows
-        .iter()
-        .filter(|a| [a.x, a.y, a.dx, a.dy].iter().all(|v| v.is_finite()))
-    {
-        let lines = arrow_lines(a.x, a.y, a.dx * q.scale, a.dy * q.scale);
+    draw_png(path, q.size, |root| {
+        let mut chart = ChartBuilder::on(root)
+            .caption(&q.title, (FONT_NAME, 22))
+            .margin(12)
+            .margin_top(44)
+            .x_label_area_size(42)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, -y1..-y0)
+            .map_err(|e| err(e.to_string()))?;
         chart
-            .draw_series(
-                lines
-                    .into_iter()
-                    .map(|l| PathElement::new(l, colour.stroke_width(1))),
-            )
+            .configure_mesh()
+            .x_desc(q.x_label.as_str())
+            .y_desc(q.y_label.as_str())
+            .y_label_formatter(&|y| format!("{:.0}", 0.0 - y))
+            .label_style((FONT_NAME, 14))
+            .axis_desc_style((FONT_NAME, 16))
+            .draw()
             .map_err(|e| err(e.to_string()))?;
-    }
-    // Key: an arrow of the key length in the top margin, above the plot,
-    // so it never hides an arrow.
-    let area = chart.plotting_area();
-    let (pw, _) = area.dim_in_pixel();
-    let (bx, by) = area.get_base_pixel();
-    let klen = (q.key.0 * q.scale * pw as f64 / (x1 - x0)).round();
-    let key_colour = PALETTE[1];
-    let (kx, ky) = (bx as f64 + 10.0, by as f64 - 14.0);
-    for l in arrow_lines(kx, ky, klen, 0.0) {
-        let px: Vec<(i32, i32)> = l.iter().map(|&(x, y)| (x as i32, -y as i32)).collect();
-        root.draw(&PathElement::new(px, key_colour.stroke_width(2)))
-            .map_err(|e| err(e.to_string()))?;
-    }
-    root.draw(&Text::new(
-        format!("key: {}", q.key.1),
-        ((kx + klen + 10.0) as i32, (ky - 8.0) as i32),
-        (FONT_NAME, 14).into_font().color(&key_colour),
-    ))
-    .map_err(|e| err(e.to_string()))?;
-    root.present().map_err(|e| err(e.to_string()))?;
-    Ok(())
+        let colour = PALETTE[0];
+        for a in q
+            .arrows
+            .iter()
+            .filter(|a| [a.x, a.y, a.dx, a.dy].iter().all(|v| v.is_finite()))
+        {
+            let lines = arrow_lines(a.x, a.y, a.dx * q.scale, a.dy * q.scale);
+            chart
+                .draw_series(
+                    lines
+                        .into_iter()
+                        .map(|l| PathElement::new(l, colour.stroke_width(1))),
+                )
+                .map_err(|e| err(e.to_string()))?;
+        }
+        // Key: an arrow of the key length in the top margin, above the plot,
+        // so it never hides an arrow.
+        let area = chart.plotting_area();
+        let (pw, _) = area.dim_in_pixel();
+        let (bx, by) = area.get_base_pixel();
+        let klen = (q.key.0 * q.scale * pw as f64 / (x1 - x0)).round();
+        let key_colour = PALETTE[1];
+        let (kx, ky) = (bx as f64 + 10.0, by as f64 - 14.0);
+        for l in arrow_lines(kx, ky, klen, 0.0) {
+            let px: Vec<(i32, i32)> = l.iter().map(|&(x, y)| (x as i32, -y as i32)).collect();
+            root.draw(&PathElement::new(px, key_colour.stroke_width(2)))
+                .map_err(|e| err(e.to_string()))?;
+        }
+        root.draw(&Text::new(
+            format!("key: {}", q.key.1),
+            ((kx + klen + 10.0) as i32, (ky - 8.0) as i32),
+            (FONT_NAME, 14).into_font().color(&key_colour),
+        ))
+        .map_err(|e| err(e.to_string()))?;
+        Ok(())
+    })
 }
 
 #[cfg(test)]

@@ -19,7 +19,8 @@
 //! | [`figures`] | small PNG figures for reports: curves with residuals, heatmaps, quivers |
 //!
 //! Support modules: [`error`] (the error type), [`infile`] (size-bounded
-//! input reads), [`outfile`] (outputs that never clobber), [`fuzzing`]
+//! input reads), [`outfile`] (outputs that never clobber), [`progress`]
+//! (progress bars, only on a terminal), [`fuzzing`]
 //! (every parser behind one entry point, for the property tests and the
 //! long-run fuzz harness).
 //!
@@ -38,6 +39,7 @@ pub mod fuzzing;
 pub mod infile;
 pub mod instruments;
 pub mod outfile;
+pub mod progress;
 pub mod radiometry;
 pub mod render;
 pub mod scene;

@@ -66,6 +66,10 @@ enum Command {
         /// Write the table as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Draw speed against error (log-log, one curve per setting, the
+        /// targets as lines): DIR/bench.png, or the given PATH.png.
+        #[arg(long, value_name = "DIR|PATH.png")]
+        plot: Option<PathBuf>,
     },
     /// Calibrate the facility's screen: `radiometric` (display LUT),
     /// `flat` (flat field), `geometric` (geometry file), `verify`
@@ -133,6 +137,7 @@ fn main() -> ExitCode {
             pixel_tolerance,
             repeats,
             json,
+            plot,
         } => cli::bench(
             &scene,
             &cli::BenchSweep {
@@ -145,6 +150,7 @@ fn main() -> ExitCode {
             },
             repeats,
             json.as_deref(),
+            plot.as_deref(),
         ),
         Command::Validate(ValidateCommand::Amie {
             img,

@@ -8,7 +8,7 @@
 # the renderer integrates BLOCK x BLOCK screen pixels per rendered pixel
 # ([screen] render_block). With TOL the scene's interior pixels use that
 # quadrature tolerance ([render] pixel_tolerance, default 1e-4).
-# usage: tools/bench_facility.sh [1920|2560] [FRAMES] [N] [BLOCK] [TOL]
+# usage: tools/bench_facility.sh [1920|2560|3840] [FRAMES] [N] [BLOCK] [TOL]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 screen=${1:-1920}
@@ -20,7 +20,8 @@ mkdir -p out/bench
 case $screen in
   1920) range=9.415e7 ;;   # 400 px at 92.3 µrad/px
   2560) range=1.1181e8 ;;  # 400 px at 77.7 µrad/px
-  *) echo "screen must be 1920 or 2560" >&2; exit 2 ;;
+  3840) range=1.4125e8 ;;  # 400 px at 61.5 µrad/px
+  *) echo "screen must be 1920, 2560 or 3840" >&2; exit 2 ;;
 esac
 rate=$(python3 -c "print(60.0 / $per_frame)")
 python3 tools/make_hold.py out/bench/hold_$screen.csv "$frames" "$range" "$rate"

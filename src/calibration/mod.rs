@@ -27,7 +27,6 @@ pub mod mismatch;
 pub mod radiometric;
 pub mod verify;
 
-use std::io::IsTerminal;
 use std::time::Duration;
 
 use crate::error::{Error, Result};
@@ -271,17 +270,7 @@ pub fn shuffle<T>(items: &mut [T], seed: u64) {
 /// A progress bar on stderr (level, ETA, last reading), hidden when
 /// stderr is not a terminal.
 pub fn progress(total: u64, what: &str) -> indicatif::ProgressBar {
-    if !std::io::stderr().is_terminal() {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(total);
-    let style =
-        indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} ETA {eta} {msg}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-            .progress_chars("=> ");
-    bar.set_style(style);
-    bar.set_prefix(what.to_string());
-    bar
+    crate::progress::bar(total, what)
 }
 
 #[cfg(test)]

@@ -816,6 +816,10 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         .map_err(|e| Error::Other(format!("cannot start the render thread: {e}")))?;
 
     let ack_timeout = Duration::from_secs_f64(config.sync.ack_timeout);
+    let progress = match frames {
+        Some(n) => crate::progress::bar(n, "run"),
+        None => crate::progress::counter("run"),
+    };
     let mut schedule: Option<Instant> = None;
     let mut unsent = Throttle::default();
     let mut result = Ok(());
@@ -913,6 +917,8 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
             result = Err(e);
             break;
         }
+        progress.inc(1);
+        progress.set_message(format!("missed {}", log.missed()));
         let periods =
             presented.saturating_duration_since(slot).as_nanos() / period.as_nanos().max(1);
         let next = slot + period * (periods.min(1 << 20) as u32 + 1);
@@ -935,6 +941,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         // keep presenting until that channel is drained and disconnected.
         let _ = free_tx.send(job.buffer);
     }
+    progress.finish_and_clear();
     stop.store(true, Ordering::Relaxed);
     drop(ready_rx);
     drop(free_tx);

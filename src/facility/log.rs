@@ -332,6 +332,11 @@ impl FrameLog {
         }
     }
 
+    /// Missed deadlines so far.
+    pub fn missed(&self) -> u64 {
+        self.missed
+    }
+
     /// Appends one record (setting `run` and `missed`) and syncs it to disk.
     pub fn write(&mut self, mut rec: FrameRecord) -> Result<()> {
         rec.run.clone_from(&self.run);

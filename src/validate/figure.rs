@@ -16,8 +16,8 @@ use super::raster::Raster;
 use super::ssim::SsimResult;
 use crate::error::{Error, Result};
 use crate::figures::{
-    canvas, curve_figure, image_panel, present, text_block, ColourMap, CurveFigure, ImagePanel,
-    Panel, Series,
+    curve_figure, draw_png, image_panel, text_block, ColourMap, CurveFigure, ImagePanel, Panel,
+    Series,
 };
 
 /// Crop margin around the disk, in disk radii.
@@ -185,20 +185,21 @@ pub fn write_comparison_png(path: impl AsRef<Path>, cmp: &Comparison) -> Result<
             ColourMap::Viridis,
         ),
     ];
-    let root = canvas(path, COMPARISON_SIZE)?;
-    let (head, rest) = root.split_vertically(50);
-    let (grid, foot) = rest.split_vertically(COMPARISON_SIZE.1 - 50 - 170);
-    text_block(&head, std::slice::from_ref(&cmp.title), 24, path)?;
-    for (area, p) in grid.split_evenly((2, 2)).iter().zip(&panels) {
-        image_panel(area, p, path)?;
-    }
-    let mut notes = cmp.notes.clone();
-    notes.push(format!(
-        "Orange circle: the aligned disk's limb; crop: the disk + {:.0} % of its radius.",
-        100.0 * CROP_MARGIN
-    ));
-    text_block(&foot, &notes, 17, path)?;
-    present(&root, path)
+    draw_png(path, COMPARISON_SIZE, |root| {
+        let (head, rest) = root.split_vertically(50);
+        let (grid, foot) = rest.split_vertically(COMPARISON_SIZE.1 - 50 - 170);
+        text_block(&head, std::slice::from_ref(&cmp.title), 24, path)?;
+        for (area, p) in grid.split_evenly((2, 2)).iter().zip(&panels) {
+            image_panel(area, p, path)?;
+        }
+        let mut notes = cmp.notes.clone();
+        notes.push(format!(
+            "Orange circle: the aligned disk's limb; crop: the disk + {:.0} % of its radius.",
+            100.0 * CROP_MARGIN
+        ));
+        text_block(&foot, &notes, 17, path)?;
+        Ok(())
+    })
 }
 
 /// Samples of the profile: distance along the line [px] and bilinear
