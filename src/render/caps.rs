@@ -69,6 +69,29 @@ impl Weight {
             Weight::LommelSeeliger => mu0 * mu / (mu0 + mu),
         }
     }
+
+    /// The weight per unit μ: the shape of the radiance, which is the
+    /// caps' flux per unit image area. Where it changes across a cap (μ0
+    /// rising from zero at the terminator) the cap's flux is split over
+    /// pixels along it rather than by area.
+    #[inline]
+    fn radiance_shape(self, mu0: f64, mu: f64) -> f64 {
+        let (mu0, mu) = (mu0.max(0.0), mu.max(0.0));
+        match self {
+            Weight::Mu0Mu => mu0,
+            Weight::Mu => 1.0,
+            Weight::LommelSeeliger if mu0 + mu > 0.0 => mu0 / (mu0 + mu),
+            Weight::LommelSeeliger => 0.0,
+        }
+    }
+}
+
+/// One row of cap corners: their projections on the image and the
+/// radiance shape there ([`Weight::radiance_shape`]).
+#[derive(Default)]
+pub struct CornerRow {
+    pos: Vec<(f64, f64)>,
+    shape: Vec<f64>,
 }
 
 /// A rectangle of the (t, s) square still to be visited or to be cut.
@@ -350,23 +373,27 @@ impl Frame<'_> {
 
     /// Project one row of cap corners (θ fixed, s from s0 in n steps of
     /// ds) into `out`; a corner behind the camera is NaN.
-    fn corner_row(&self, theta: f64, s0: f64, ds: f64, n: u32, out: &mut Vec<(f64, f64)>) {
-        out.clear();
+    fn corner_row(&self, theta: f64, s0: f64, ds: f64, n: u32, out: &mut CornerRow) {
+        out.pos.clear();
+        out.shape.clear();
         let (st, ct) = theta.sin_cos();
         let (lo, hi) = self.lune.phi_range(st);
         let width = (hi - lo).max(0.0);
         let (mut sp, mut cp) = (lo + s0 * width).sin_cos();
         let (sd, cd) = (ds * width).sin_cos();
+        let (sin_a, cos_a) = self.lune.alpha.sin_cos();
         let [xc, yc, zc] = self.axes_cam;
         let base = zc * (ct * self.radius) - self.camera_cam;
         let (xs, ys) = (xc * (st * self.radius), yc * (st * self.radius));
         for _ in 0..=n {
             let p = base + xs * cp + ys * sp;
-            out.push(if p.z > 0.0 {
+            out.pos.push(if p.z > 0.0 {
                 self.camera.project(p)
             } else {
                 (f64::NAN, f64::NAN)
             });
+            let (mu0, mu) = (st * cp, st * (cp * cos_a + sp * sin_a));
+            out.shape.push(self.weight.radiance_shape(mu0, mu));
             (sp, cp) = (sp * cd + cp * sd, cp * cd - sp * sd);
         }
     }
@@ -374,7 +401,7 @@ impl Frame<'_> {
     /// Integrate and grid every cap of a leaf into `sink`. `rows` is
     /// scratch space. Returns the sum of the caps' PF (per unit solar
     /// irradiance at 1 au) that the sink kept or that fell outside it.
-    pub fn grid_leaf(&self, leaf: &Leaf, sink: &mut Sink, rows: &mut [Vec<(f64, f64)>; 2]) -> f64 {
+    pub fn grid_leaf(&self, leaf: &Leaf, sink: &mut Sink, rows: &mut [CornerRow; 2]) -> f64 {
         let cell = leaf.cell;
         let dt = (cell.t1 - cell.t0) / leaf.n_t as f64;
         let ds = (cell.s1 - cell.s0) / leaf.n_s as f64;
@@ -419,7 +446,18 @@ impl Frame<'_> {
                 // Advance φ by one cap (angle-addition recurrence).
                 (sp, cp) = (sp * cd + cp * sd, cp * cd - sp * sd);
                 let (sp, cp) = (sp_c, cp_c);
-                let quad = [upper[b], upper[b + 1], lower[b + 1], lower[b]];
+                let quad = [
+                    upper.pos[b],
+                    upper.pos[b + 1],
+                    lower.pos[b + 1],
+                    lower.pos[b],
+                ];
+                let shape = [
+                    upper.shape[b],
+                    upper.shape[b + 1],
+                    lower.shape[b + 1],
+                    lower.shape[b],
+                ];
                 if sink.covers_quad(&quad) {
                     continue;
                 }
@@ -474,9 +512,9 @@ impl Frame<'_> {
                 total += pf;
                 if quad.iter().all(|p| p.0.is_finite()) {
                     if texture.k > 1 {
-                        texture.grid(sink, &quad, pf);
+                        texture.grid(sink, &quad, &shape, pf);
                     } else {
-                        grid_quad(sink, &quad, pf);
+                        grid_quad_shaped(sink, &quad, &shape, pf);
                     }
                 }
             }
@@ -624,9 +662,10 @@ impl Texture {
     }
 
     /// Grid `pf` over the k×k sub-quadrilaterals of `quad` (corners at
-    /// (t0,s0), (t0,s1), (t1,s1), (t1,s0)) in proportion to the samples.
+    /// (t0,s0), (t0,s1), (t1,s1), (t1,s0)) in proportion to the samples
+    /// times the radiance shape, interpolated from the cap's corners.
     #[inline]
-    fn grid(&self, sink: &mut Sink, quad: &[(f64, f64); 4], pf: f64) {
+    fn grid(&self, sink: &mut Sink, quad: &[(f64, f64); 4], shape: &[f64; 4], pf: f64) {
         // A cap inside one pixel needs no split.
         let (x0, y0, x1, y1) = bounds(quad);
         if x0.floor() == x1.floor() && y0.floor() == y1.floor() {
@@ -634,25 +673,33 @@ impl Texture {
             return;
         }
         let k = self.k;
-        let sum: f64 = self.values[..k * k].iter().sum();
-        if !(sum > 0.0) {
-            return;
-        }
+        let weights = |v: f64, u: f64| [(1.0 - v) * (1.0 - u), (1.0 - v) * u, v * u, v * (1.0 - u)];
         let at = |v: f64, u: f64| {
-            let w = [(1.0 - v) * (1.0 - u), (1.0 - v) * u, v * u, v * (1.0 - u)];
-            (
-                w[0] * quad[0].0 + w[1] * quad[1].0 + w[2] * quad[2].0 + w[3] * quad[3].0,
-                w[0] * quad[0].1 + w[1] * quad[1].1 + w[2] * quad[2].1 + w[3] * quad[3].1,
-            )
+            let w = weights(v, u);
+            let x = w[0] * quad[0].0 + w[1] * quad[1].0 + w[2] * quad[2].0 + w[3] * quad[3].0;
+            let y = w[0] * quad[0].1 + w[1] * quad[1].1 + w[2] * quad[2].1 + w[3] * quad[3].1;
+            let h = w[0] * shape[0] + w[1] * shape[1] + w[2] * shape[2] + w[3] * shape[3];
+            ((x, y), h)
         };
         let step = 1.0 / k as f64;
+        let mut subs = [([(0.0, 0.0); 4], [0.0; 4], 0.0); 16];
+        let mut sum = 0.0;
         for p in 0..k {
             let (v0, v1) = (p as f64 * step, (p + 1) as f64 * step);
             for q in 0..k {
                 let (u0, u1) = (q as f64 * step, (q + 1) as f64 * step);
-                let sub = [at(v0, u0), at(v0, u1), at(v1, u1), at(v1, u0)];
-                grid_quad(sink, &sub, pf * self.values[p * k + q] / sum);
+                let c = [at(v0, u0), at(v0, u1), at(v1, u1), at(v1, u0)];
+                let h = [c[0].1, c[1].1, c[2].1, c[3].1];
+                let share = self.values[p * k + q] * 0.25 * (h[0] + h[1] + h[2] + h[3]);
+                subs[p * k + q] = ([c[0].0, c[1].0, c[2].0, c[3].0], h, share);
+                sum += share;
             }
+        }
+        if !(sum > 0.0) {
+            return;
+        }
+        for (sub, h, share) in &subs[..k * k] {
+            grid_quad_shaped(sink, sub, h, pf * share / sum);
         }
     }
 }
@@ -805,6 +852,42 @@ struct Polygon {
 }
 
 impl Polygon {
+    fn from_quad(quad: &[(f64, f64); 4]) -> Polygon {
+        let mut poly = Polygon {
+            v: [(0.0, 0.0); 8],
+            n: 4,
+        };
+        poly.v[..4].copy_from_slice(quad);
+        poly
+    }
+
+    /// The part below grid line `k + 1` along `axis`, leaving the rest in
+    /// `self`; the whole rest at the last line `last`.
+    #[inline]
+    fn split_at(&mut self, axis: usize, k: i64, last: i64) -> Polygon {
+        if k == last {
+            return *self;
+        }
+        let low = self.clip(axis, (k + 1) as f64, true);
+        *self = self.clip(axis, (k + 1) as f64, false);
+        low
+    }
+
+    /// Area and first moment (∫x dA, ∫y dA), unsigned whichever the
+    /// vertex order.
+    fn area_moment(&self) -> (f64, (f64, f64)) {
+        let (mut a, mut mx, mut my) = (0.0, 0.0, 0.0);
+        for k in 0..self.n {
+            let (p, q) = (self.v[k], self.v[(k + 1) % self.n]);
+            let c = p.0 * q.1 - q.0 * p.1;
+            a += c;
+            mx += (p.0 + q.0) * c;
+            my += (p.1 + q.1) * c;
+        }
+        let sign = if a < 0.0 { -1.0 } else { 1.0 };
+        (0.5 * a * sign, (mx * sign / 6.0, my * sign / 6.0))
+    }
+
     fn area(&self) -> f64 {
         let mut a = 0.0;
         for k in 0..self.n {
@@ -960,6 +1043,89 @@ fn bounds(quad: &[(f64, f64); 4]) -> (f64, f64, f64, f64) {
         y1 = hi(y1, p.1);
     }
     (x0, y0, x1, y1)
+}
+
+/// Relative change of the radiance shape across a cap below which the
+/// area split is kept: its error in a pixel's share is then below ~1e-3 of
+/// the cap, and the split by area is the cheaper one.
+const SHAPE_FLAT: f64 = 1e-2;
+
+/// Gridding of one cap whose radiance changes across it (the terminator,
+/// where μ0 rises from zero): the radiance is taken as the plane through
+/// the corners' `shape` values (its gradient from the two diagonals), and
+/// each pixel receives the plane's integral over its part of the
+/// footprint, from the part's area and first moment. Elsewhere the shape
+/// is flat and this is [`grid_quad`].
+#[inline]
+fn grid_quad_shaped(sink: &mut Sink, quad: &[(f64, f64); 4], shape: &[f64; 4], value: f64) {
+    let (x0, y0, x1, y1) = bounds(quad);
+    let (i0, i1) = (x0.floor() as i64, x1.floor() as i64);
+    let (j0, j1) = (y0.floor() as i64, y1.floor() as i64);
+    let mean = 0.25 * (shape[0] + shape[1] + shape[2] + shape[3]);
+    let spread = shape.iter().fold(0.0f64, |m, &h| m.max((h - mean).abs()));
+    if (i0 == i1 && j0 == j1) || !(spread > SHAPE_FLAT * mean) {
+        return grid_quad(sink, quad, value);
+    }
+    let Some(slope) = plane_slope(quad, shape) else {
+        return grid_quad(sink, quad, value);
+    };
+    let centre = (
+        0.25 * (quad[0].0 + quad[1].0 + quad[2].0 + quad[3].0),
+        0.25 * (quad[0].1 + quad[1].1 + quad[2].1 + quad[3].1),
+    );
+    // ∫ over a part of (mean + slope · (p − centre)).
+    let weight = |part: &Polygon| {
+        let (a, (mx, my)) = part.area_moment();
+        (a * mean + slope.0 * (mx - a * centre.0) + slope.1 * (my - a * centre.1)).max(0.0)
+    };
+    let mut cells = [(0i64, 0i64, 0.0f64); 16];
+    let mut n = 0;
+    let mut total = 0.0;
+    let mut rest = Polygon::from_quad(quad);
+    for i in i0..=i1 {
+        let column = rest.split_at(0, i, i1);
+        let mut col_rest = column;
+        for j in j0..=j1 {
+            let cell = col_rest.split_at(1, j, j1);
+            if cell.n < 3 {
+                continue;
+            }
+            let w = weight(&cell);
+            total += w;
+            if n < cells.len() {
+                cells[n] = (i, j, w);
+                n += 1;
+            } else {
+                // Caps span a few pixels at most; a larger one keeps the area split.
+                return grid_quad(sink, quad, value);
+            }
+        }
+    }
+    if !(total > 0.0) {
+        return grid_quad(sink, quad, value);
+    }
+    for &(i, j, w) in &cells[..n] {
+        sink.add(i, j, value * w / total);
+    }
+}
+
+/// Gradient of the plane through a quadrilateral's corner values, from its
+/// two diagonals (exact when the values are linear); `None` when the
+/// quadrilateral is degenerate.
+#[inline]
+fn plane_slope(quad: &[(f64, f64); 4], shape: &[f64; 4]) -> Option<(f64, f64)> {
+    let d02 = (quad[2].0 - quad[0].0, quad[2].1 - quad[0].1);
+    let d13 = (quad[3].0 - quad[1].0, quad[3].1 - quad[1].1);
+    let (h02, h13) = (shape[2] - shape[0], shape[3] - shape[1]);
+    let det = d02.0 * d13.1 - d02.1 * d13.0;
+    let scale = (d02.0 * d02.0 + d02.1 * d02.1) * (d13.0 * d13.0 + d13.1 * d13.1);
+    if !(det * det > 1e-12 * scale) {
+        return None;
+    }
+    Some((
+        (h02 * d13.1 - h13 * d02.1) / det,
+        (d02.0 * h13 - d13.0 * h02) / det,
+    ))
 }
 
 /// Area-weighted gridding of one cap (the paper's countermeasure against

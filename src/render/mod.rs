@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::radiometry::reflectance::Reflectance;
 use crate::scene::{Body, Pinhole, State};
-use caps::{Cell, Frame, Leaf, Rect, Sink, Weight};
+use caps::{Cell, CornerRow, Frame, Leaf, Rect, Sink, Weight};
 use interior::{InteriorMask, PixelRays};
 use lune::Lune;
 
@@ -190,7 +190,7 @@ pub struct StageTimes {
 }
 
 /// One worker's accumulation buffer (over the ROI) and corner-row scratch.
-type Worker = (Vec<f32>, [Vec<(f64, f64)>; 2]);
+type Worker = (Vec<f32>, [CornerRow; 2]);
 
 /// Renders bodies onto one pixel grid. Buffers are kept between calls and
 /// only grow up to the image size, so a frame loop does not allocate.
@@ -215,7 +215,7 @@ impl Renderer {
             flux: crate::resident_vec(0.0, n),
             dirty: Rect::default(),
             workers: (0..threads)
-                .map(|_| (Vec::new(), [Vec::new(), Vec::new()]))
+                .map(|_| (Vec::new(), Default::default()))
                 .collect(),
             leaves: Vec::new(),
             stack: Vec::new(),
