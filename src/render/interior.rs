@@ -423,7 +423,7 @@ impl Lattice {
                     a1: (q[4], q[5]),
                     a2: (q[6], q[7]),
                 }
-                .mean(map, frame.texture_samples)
+                .mean(map, frame.texture_samples, frame.map_filter)
                     * frame.map_scale
             }
         };
@@ -728,7 +728,10 @@ impl PixelRays {
         };
         let albedo = match &frame.body.albedo_map {
             None => frame.albedo,
-            Some(map) => self.footprint(map, &s).mean(map, frame.texture_samples) * frame.map_scale,
+            Some(map) => {
+                let f = self.footprint(map, &s);
+                f.mean(map, frame.texture_samples, frame.map_filter) * frame.map_scale
+            }
         };
         let midpoint = self.flux_at(frame, &s, albedo);
         if self.midpoint_suffices(&s) {

@@ -649,6 +649,7 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
                 }
             };
             map.stretch_power(lo, hi, m.power);
+            map.prepare_filters();
             Some(map)
         }
         None => None,
