@@ -121,9 +121,9 @@ fn footprints(w: f64, h: f64) -> Vec<(&'static str, Pt, Pt, Pt)> {
         ("south pole", (40.0, h - 1.2), (1.1, 0.4), (0.6, 2.9)),
         ("large", (30.0, 14.0), (23.0, 6.0), (-4.0, 9.0)),
         (
-            "wider than the map",
+            "nearly the map's width",
             (12.0, 16.0),
-            (1.7 * w, 0.5),
+            (0.93 * w, 0.5),
             (0.2, 1.3),
         ),
     ]
@@ -177,6 +177,26 @@ fn exact_mean_matches_cell_integration_on_the_lroc_map() {
             (exact - cells).abs() <= 1e-9 * cells,
             "lroc {name}: exact {exact} against cells {cells}"
         );
+    }
+}
+
+/// At a pole a footprint may span several turns of longitude; it is
+/// narrowed to one turn, which for a box aligned with the rows changes
+/// nothing: whole turns of a row average to its period mean.
+#[test]
+fn footprints_of_several_turns_are_bounded_and_exact_for_row_boxes() {
+    for m in [checkerboard(), lroc()] {
+        let (w, h) = (m.width as f64, m.height as f64);
+        for (c, turns, tall) in [((5.3, 0.2), 3.0, 1.4), ((w - 1.0, h - 1.6), 40.0, 2.5)] {
+            let a1 = (turns * w, 0.0);
+            let a2 = (0.0, tall);
+            let exact = m.parallelogram_mean(c.0, c.1, a1, a2);
+            let cells = mean_by_cells(&m, c, (w, 0.0), a2);
+            assert!(
+                (exact - cells).abs() <= 1e-9 * cells.abs(),
+                "{turns} turns: {exact} against {cells}"
+            );
+        }
     }
 }
 

@@ -131,6 +131,26 @@ fn bilinear(data: &[f32], w: usize, h: usize, x: f64, y: f64) -> f64 {
     t + (b - t) * ty
 }
 
+/// G(x, y) = ∫₀ˣ f(s, y) ds on one texel cell of the bilinear map: per
+/// row (prefix at the cell's left edge, value there, half the slope).
+struct GreenCell {
+    x0: f64,
+    y0: f64,
+    rows: [(f64, f64, f64); 2],
+}
+
+impl GreenCell {
+    /// G at (x, y), y already clamped to the map's rows.
+    #[inline(always)]
+    fn g(&self, x: f64, y: f64) -> f64 {
+        let u = x - self.x0;
+        let [(b0, v0, s0), (b1, v1, s1)] = self.rows;
+        let g0 = b0 + u * (v0 + s0 * u);
+        let g1 = b1 + u * (v1 + s1 * u);
+        g0 + (y - self.y0) * (g1 - g0)
+    }
+}
+
 /// A position along one axis of a summed-area table: the cell it falls in
 /// and the fraction into it, for x clamped to [0, n].
 #[derive(Clone, Copy)]
@@ -531,7 +551,8 @@ impl EquirectMap {
     /// prefix integral (the table plus the partial cell's quadratic), so
     /// along an edge cut at every texel row and column line G is a cubic
     /// in the edge parameter and Simpson's rule is exact on each piece.
-    /// The cost is proportional to the perimeter in texels, plus 4.
+    /// The cost is proportional to the perimeter in texels, plus 4;
+    /// footprints wider than the map (at a pole) are narrowed to one turn.
     pub fn parallelogram_mean(&self, x: f64, y: f64, a1: (f64, f64), a2: (f64, f64)) -> f64 {
         let area = a1.0 * a2.1 - a1.1 * a2.0;
         let size2 = a1.0 * a1.0 + a1.1 * a1.1 + a2.0 * a2.0 + a2.1 * a2.1;
@@ -545,6 +566,17 @@ impl EquirectMap {
             x
         } else {
             x.rem_euclid(wf)
+        };
+        // At a pole the footprint's x extent grows like 1/cos(lat), and so
+        // would the work: beyond one full turn of longitude, shrink it in x
+        // to one turn (each row is then averaged over its whole period; the
+        // preimage there is a polar cap, not a parallelogram in x, y).
+        let extent = a1.0.abs() + a2.0.abs();
+        let (a1, a2, area) = if extent > wf {
+            let k = wf / extent;
+            ((a1.0 * k, a1.1), (a2.0 * k, a2.1), area * k)
+        } else {
+            (a1, a2, area)
         };
         let (h1, h2) = ((0.5 * a1.0, 0.5 * a1.1), (0.5 * a2.0, 0.5 * a2.1));
         let corners = [
@@ -562,7 +594,8 @@ impl EquirectMap {
     }
 
     /// ∫ G dy along the segment p → q, cut at every texel column line and
-    /// every row line within the clamp range [0, H − 1].
+    /// every row line within the clamp range [0, H − 1]. G is continuous,
+    /// so each cut point's value serves the pieces on both sides.
     #[inline]
     fn edge_integral(&self, table: &[f64], p: (f64, f64), q: (f64, f64)) -> f64 {
         let (dx, dy) = (q.0 - p.0, q.1 - p.1);
@@ -570,8 +603,9 @@ impl EquirectMap {
             return 0.0;
         }
         let top = (self.height - 1) as f64;
+        let (inv_dx, inv_dy) = (1.0 / dx, 1.0 / dy);
         // Next column line kx and row line ky crossed, and their parameters.
-        let sx = dx.signum();
+        let (sx, sy) = (dx.signum(), dy.signum());
         let mut kx = if dx > 0.0 {
             p.0.floor() + 1.0
         } else {
@@ -586,71 +620,80 @@ impl EquirectMap {
             if dx == 0.0 {
                 f64::INFINITY
             } else {
-                (kx - p.0) / dx
+                (kx - p.0) * inv_dx
             }
         };
         let tau_y = |ky: f64| {
             if (0.0..=top).contains(&ky) {
-                (ky - p.1) / dy
+                (ky - p.1) * inv_dy
             } else {
                 f64::INFINITY
             }
         };
         let (mut tx, mut ty) = (tau_x(kx), tau_y(ky));
         let mut ta = 0.0;
+        let mut ga = f64::NAN;
         let mut sum = 0.0;
         loop {
             let tb = tx.min(ty).min(1.0);
             if tb > ta {
-                sum += self.piece(table, p, (dx, dy), ta, tb);
+                let cell = self.cell_at(
+                    table,
+                    p.0 + dx * 0.5 * (ta + tb),
+                    p.1 + dy * 0.5 * (ta + tb),
+                );
+                let g = |t: f64| cell.g(p.0 + dx * t, (p.1 + dy * t).clamp(0.0, top));
+                if ga.is_nan() {
+                    ga = g(ta);
+                }
+                let (gm, gb) = (g(0.5 * (ta + tb)), g(tb));
+                // Simpson's rule, exact for the cubic.
+                sum += (tb - ta) * (ga + 4.0 * gm + gb);
+                ga = gb;
             }
             if tb >= 1.0 {
-                return sum;
+                return sum * dy / 6.0;
             }
             if tx <= tb {
                 kx += sx;
                 tx = tau_x(kx);
             }
             if ty <= tb {
-                ky += dy.signum();
+                ky += sy;
                 ty = tau_y(ky);
             }
             ta = tb;
         }
     }
 
-    /// ∫ G dy over the part [ta, tb] of the segment p + τ d lying in one
-    /// texel cell: Simpson's rule, exact for G's cubic there.
+    /// G's polynomial on the texel cell holding (x, y): the two rows'
+    /// prefix integrals there, blended in y.
     #[inline(always)]
-    fn piece(&self, table: &[f64], p: (f64, f64), d: (f64, f64), ta: f64, tb: f64) -> f64 {
+    fn cell_at(&self, table: &[f64], x: f64, y: f64) -> GreenCell {
         let (w, h) = (self.width, self.height);
-        let top = (h - 1) as f64;
-        let tm = 0.5 * (ta + tb);
-        // The cell, from the piece's midpoint (robust to rounding at the
-        // cut points: the cell's polynomial extends smoothly past them).
-        let ym = (p.1 + d.1 * tm).clamp(0.0, top);
-        let j = (ym as usize).min(h - 2);
-        let xf = (p.0 + d.0 * tm).floor();
-        let xi = xf as i64;
-        let turns = xi.div_euclid(w as i64);
+        let j = (y.clamp(0.0, (h - 1) as f64) as usize).min(h - 2);
+        let x0 = x.floor();
+        let xi = x0 as i64;
+        // Pieces lie within a few map widths of [0, W): wrap without a
+        // division in the common case.
+        let turns = if (xi as u64) < w as u64 {
+            0
+        } else {
+            xi.div_euclid(w as i64)
+        };
         let i = (xi - turns * w as i64) as usize;
         let next = if i + 1 == w { 0 } else { i + 1 };
         let row = |r: usize| {
-            let c = &table[r * (w + 1)..(r + 1) * (w + 1)];
+            let c = &table[r * (w + 1)..][..w + 1];
             let v = self.data[r * w + i] as f64;
-            let slope = self.data[r * w + next] as f64 - v;
-            (c[i] + turns as f64 * c[w], v, 0.5 * slope)
+            let half_slope = 0.5 * (self.data[r * w + next] as f64 - v);
+            (c[i] + turns as f64 * c[w], v, half_slope)
         };
-        let (b0, v0, s0) = row(j);
-        let (b1, v1, s1) = row(j + 1);
-        let g = |t: f64| {
-            let u = p.0 + d.0 * t - xf;
-            let ty = (p.1 + d.1 * t).clamp(0.0, top) - j as f64;
-            let g0 = b0 + u * (v0 + s0 * u);
-            let g1 = b1 + u * (v1 + s1 * u);
-            g0 + ty * (g1 - g0)
-        };
-        (tb - ta) * d.1 / 6.0 * (g(ta) + 4.0 * g(tm) + g(tb))
+        GreenCell {
+            x0,
+            y0: j as f64,
+            rows: [row(j), row(j + 1)],
+        }
     }
 
     /// Derivatives of the map [value per radian] with respect to latitude
