@@ -71,6 +71,18 @@ impl InteriorMask {
         self.count
     }
 
+    /// Whether image pixel (i, j) was integrated per pixel.
+    pub fn contains(&self, i: usize, j: usize) -> bool {
+        let r = &self.roi;
+        let inside = i >= r.x0 && i < r.x1 && j >= r.y0 && j < r.y1;
+        inside
+            && self
+                .interior
+                .get((j - r.y0) * r.width() + (i - r.x0))
+                .copied()
+                .unwrap_or(false)
+    }
+
     /// Whether every pixel of [x0, x1) × [y0, y1) (image coordinates) is
     /// interior.
     #[inline]

@@ -242,6 +242,12 @@ impl Renderer {
         }
     }
 
+    /// Whether image pixel (i, j) was integrated per pixel in the last
+    /// render with `interior = "pixels"` (else it came from the caps).
+    pub fn is_interior_pixel(&self, i: usize, j: usize) -> bool {
+        self.interior.contains(i, j)
+    }
+
     /// The pixel grid.
     pub fn camera(&self) -> &Pinhole {
         &self.camera
