@@ -297,8 +297,9 @@ fn a_constant_map_renders_as_no_map() {
 fn an_unknown_map_filter_is_a_named_error() {
     let mut setup = Setup::new("{ model = \"lambert\", albedo = 0.12 }", 30.0, 60.0, 100.0);
     setup.extra_render = "map_filter = \"bicubic\"".into();
-    let err = optistim::scene::Scene::from_toml(&setup.toml(), std::path::Path::new("t.toml"))
-        .err()
-        .expect("refused");
+    let Err(err) = optistim::scene::Scene::from_toml(&setup.toml(), std::path::Path::new("t.toml"))
+    else {
+        panic!("an unknown map_filter was accepted");
+    };
     assert!(err.to_string().contains("map_filter"), "{err}");
 }
