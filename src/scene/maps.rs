@@ -71,7 +71,8 @@ pub struct EquirectMap {
     x_levels: OnceLock<Vec<Vec<f32>>>,
     /// Per-row prefix integrals of the bilinear interpolant along x, for
     /// [`Self::parallelogram_mean`]: (width + 1) f64 per row (16.8 MB for a
-    /// 2048 × 1024 map), built by [`Self::prepare_filters`] at scene load.
+    /// 2048 × 1024 map), built at scene load when the scene asks for the
+    /// exact filter ([`Self::prepare_filters`]), else on first use.
     row_prefix: OnceLock<Vec<f64>>,
 }
 
