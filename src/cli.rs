@@ -19,7 +19,7 @@ use optistim::facility::driver::{self, RunPlan, StateSource};
 use optistim::facility::serial::{SerialOptions, SerialPortSync, SimSync, SyncPort};
 use optistim::facility::trajectory::Trajectory;
 use optistim::render::detector::{render_scene, PixelGeometry};
-use optistim::render::{output, Interior, Renderer};
+use optistim::render::{output, Interior, MapFilter, Renderer};
 use optistim::scene::Scene;
 
 /// `optistim render`.
@@ -56,6 +56,7 @@ pub(crate) struct BenchRow {
     interior: Interior,
     caps_per_pixel: f64,
     texture_samples: usize,
+    map_filter: MapFilter,
     node_spacing: usize,
     pixel_tolerance: f64,
     interior_pixels: usize,
@@ -70,6 +71,9 @@ pub(crate) struct BenchRow {
     pixel_error_p50: f64,
     pixel_error_p99: f64,
     pixel_error_max: f64,
+    /// p99 over the interior pixels alone (integrated per pixel; NaN with
+    /// `interior = "caps"`): the map filter's share, without the edges.
+    interior_error_p99: f64,
     /// Median wall time of each stage: layout, mask, caps, interior [ms].
     stage_median_ms: [f64; 4],
 }
@@ -113,6 +117,8 @@ pub struct BenchSweep {
     pub interior: Vec<String>,
     /// Map samples per axis.
     pub texture_samples: Vec<usize>,
+    /// `exact` and/or `samples`.
+    pub map_filters: Vec<String>,
     /// Interior node-lattice spacings [px].
     pub node_spacings: Vec<usize>,
     /// Interior pixel quadrature tolerances.
@@ -142,9 +148,20 @@ pub fn bench(
         densities,
         interior,
         texture_samples,
+        map_filters,
         node_spacings,
         pixel_tolerances,
     } = sweep;
+    let filters = map_filters
+        .iter()
+        .map(|m| match m.as_str() {
+            "exact" => Ok(MapFilter::Exact),
+            "samples" => Ok(MapFilter::Samples),
+            other => Err(anyhow::anyhow!(
+                "--map-filter: `{other}`: expected exact or samples"
+            )),
+        })
+        .collect::<Result<Vec<_>>>()?;
     let modes = interior
         .iter()
         .map(|m| match m.as_str() {
@@ -162,6 +179,8 @@ pub fn bench(
     let node_spacings = swept_or_scene(node_spacings, &scene_spacing);
     let pixel_tolerances = swept_or_scene(pixel_tolerances, &scene_tolerance);
     let texture_samples = swept_or_scene(texture_samples, &scene_samples);
+    let scene_filter = [base.render.map_filter];
+    let filters = swept_or_scene(&filters, &scene_filter);
     let pin = base.camera.pinhole.clone();
     let mut renderer = Renderer::new(pin.clone());
     let mut rows = Vec::new();
@@ -172,9 +191,10 @@ pub fn bench(
         pin.height,
         base.body.reflectance.name()
     );
-    println!("| phase [deg] | interior | caps/px | map samples | node spacing | pixel tol. | caps | integrated | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| phase [deg] | interior | caps/px | map samples | node spacing | pixel tol. | caps | integrated | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max | interior p99 |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let per_phase = modes.len()
+        * filters.len()
         * densities.len()
         * texture_samples.len()
         * node_spacings.len()
@@ -191,6 +211,9 @@ pub fn bench(
         settings.caps_per_pixel = Some(ref_density);
         settings.min_caps = settings.min_caps.max(256);
         settings.interior = Interior::Caps;
+        // The map's exact means over each cap's parts: a reference that
+        // converges without sampling error of its own.
+        settings.map_filter = MapFilter::Exact;
         renderer.render_flux(&scene.body, &scene.state, &settings, None);
         progress.inc(1);
         let reference: Vec<f32> = renderer.flux().to_vec();
@@ -200,12 +223,14 @@ pub fn bench(
             densities
                 .iter()
                 .flat_map(move |&d| texture_samples.iter().map(move |&k| (m, d, k)))
-                .flat_map(move |(m, d, k)| node_spacings.iter().map(move |&n| (m, d, k, n)))
-                .flat_map(move |(m, d, k, n)| {
-                    pixel_tolerances.iter().map(move |&e| (m, d, k, n, e))
+                .flat_map(move |(m, d, k)| filters.iter().map(move |&f| (m, d, k, f)))
+                .flat_map(move |(m, d, k, f)| node_spacings.iter().map(move |&n| (m, d, k, f, n)))
+                .flat_map(move |(m, d, k, f, n)| {
+                    pixel_tolerances.iter().map(move |&e| (m, d, k, f, n, e))
                 })
         });
-        for (mode, density, samples, spacing, tolerance) in points {
+        for (mode, density, samples, filter, spacing, tolerance) in points {
+            settings.map_filter = filter;
             settings.node_spacing = spacing;
             settings.pixel_tolerance = tolerance;
             settings.caps_per_pixel = Some(density);
@@ -251,11 +276,22 @@ pub fn bench(
                 .map(|(&v, &r)| ((v - r) as f64 / r as f64).abs())
                 .collect();
             errors.sort_by(f64::total_cmp);
+            let mut interior_errors: Vec<f64> = Vec::new();
+            if mode == Interior::Pixels {
+                for (k, (&v, &r)) in flux.iter().zip(&reference).enumerate() {
+                    let (i, j) = (k % pin.width, k / pin.width);
+                    if r as f64 > 0.01 * ref_peak && renderer.is_interior_pixel(i, j) {
+                        interior_errors.push(((v - r) as f64 / r as f64).abs());
+                    }
+                }
+            }
+            interior_errors.sort_by(f64::total_cmp);
             let row = BenchRow {
                 phase_deg: phase,
                 interior: mode,
                 caps_per_pixel: density,
                 texture_samples: samples,
+                map_filter: filter,
                 node_spacing: spacing,
                 pixel_tolerance: tolerance,
                 interior_pixels,
@@ -268,17 +304,19 @@ pub fn bench(
                 pixel_error_p50: percentile(&errors, 0.5),
                 pixel_error_p99: percentile(&errors, 0.99),
                 pixel_error_max: errors.last().copied().unwrap_or(f64::NAN),
+                interior_error_p99: percentile(&interior_errors, 0.99),
                 stage_median_ms,
             };
             let [lay, mask, cap, int] = stage_median_ms;
             // The bar steps aside while the row is printed.
             progress.suspend(|| println!(
-                "| {:.0} | {:?} | {} | {}×{} | {spacing} | {tolerance:.0e} | {} | {} | {} | {:.2} | {:.2} | {lay:.2} / {mask:.2} / {cap:.2} / {int:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} |",
+                "| {:.0} | {:?} | {} | {}×{}{} | {spacing} | {tolerance:.0e} | {} | {} | {} | {:.2} | {:.2} | {lay:.2} / {mask:.2} / {cap:.2} / {int:.2} | {:.1e} | {:.2e} | {:.2e} | {:.2e} | {:.2e} |",
                 row.phase_deg,
                 row.interior,
                 row.caps_per_pixel,
                 samples,
                 samples,
+                if filter == MapFilter::Exact { " exact" } else { "" },
                 row.caps,
                 row.caps_integrated,
                 row.interior_pixels,
@@ -287,7 +325,8 @@ pub fn bench(
                 row.flux_error,
                 row.pixel_error_p50,
                 row.pixel_error_p99,
-                row.pixel_error_max
+                row.pixel_error_max,
+                row.interior_error_p99
             ));
             progress.inc(1);
             rows.push(row);

@@ -52,6 +52,10 @@ enum Command {
         /// time; default: the scene's.
         #[arg(long, value_delimiter = ',')]
         texture_samples: Vec<usize>,
+        /// Albedo-map filters to time: `exact`, `samples`; default: the
+        /// scene's. The reference always takes the exact filter.
+        #[arg(long, value_delimiter = ',')]
+        map_filter: Vec<String>,
         /// Interior node-lattice spacings [px] to time (1: every pixel
         /// evaluated); default: the scene's.
         #[arg(long, value_delimiter = ',')]
@@ -133,6 +137,7 @@ fn main() -> ExitCode {
             densities,
             interior,
             texture_samples,
+            map_filter,
             node_spacing,
             pixel_tolerance,
             repeats,
@@ -145,6 +150,7 @@ fn main() -> ExitCode {
                 densities,
                 interior,
                 texture_samples,
+                map_filters: map_filter,
                 node_spacings: node_spacing,
                 pixel_tolerances: pixel_tolerance,
             },

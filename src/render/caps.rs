@@ -29,6 +29,7 @@ use glam::DVec3;
 use super::closed_form;
 use super::interior::InteriorMask;
 use super::lune::Lune;
+use super::MapFilter;
 use crate::radiometry::fastmath;
 use crate::radiometry::reflectance::Reflectance;
 use crate::radiometry::spectrum::AU;
@@ -185,6 +186,8 @@ pub struct Frame<'a> {
     pub occulter: Option<(DVec3, f64)>,
     /// Albedo samples per cap along each axis (1–4).
     pub texture_samples: usize,
+    /// Exact footprint means or k×k samples.
+    pub map_filter: MapFilter,
 }
 
 /// Radius of the solar photosphere [m].
@@ -497,7 +500,8 @@ impl Frame<'_> {
                         // Albedo sampled k×k times over the cap's footprint.
                         let e1 = (xb * (ct * cp) + yb * (ct * sp) - zb * st) * d_theta;
                         let e2 = (yb * cp - xb * sp) * (st * d_phi);
-                        texture.sample(map, n_body, e1, e2, self.texture_samples) * self.map_scale
+                        let k = self.texture_samples;
+                        texture.sample(map, n_body, e1, e2, k, self.map_filter) * self.map_scale
                     }
                 };
                 let integrand = self.integrand(
@@ -657,8 +661,16 @@ impl Texture {
     /// `n` with edge vectors `e1` (along θ) and `e2` (along φ); returns the
     /// mean.
     #[inline]
-    fn sample(&mut self, map: &EquirectMap, n: DVec3, e1: DVec3, e2: DVec3, k: usize) -> f64 {
-        Footprint::new(map, n, e1, e2).sample(map, k, &mut self.values, &mut self.k)
+    fn sample(
+        &mut self,
+        map: &EquirectMap,
+        n: DVec3,
+        e1: DVec3,
+        e2: DVec3,
+        k: usize,
+        filter: MapFilter,
+    ) -> f64 {
+        Footprint::new(map, n, e1, e2).sample(map, k, filter, &mut self.values, &mut self.k)
     }
 
     /// Grid `pf` over the k×k sub-quadrilaterals of `quad` (corners at
@@ -742,9 +754,12 @@ impl Footprint {
         }
     }
 
-    /// Mean albedo over a pixel's footprint (k×k samples).
+    /// Mean albedo over a pixel's footprint: exact, or k×k samples.
     #[inline]
-    pub(super) fn mean(&self, map: &EquirectMap, k: usize) -> f64 {
+    pub(super) fn mean(&self, map: &EquirectMap, k: usize, filter: MapFilter) -> f64 {
+        if filter == MapFilter::Exact {
+            return map.parallelogram_mean(self.x, self.y, self.a1, self.a2);
+        }
         match k.clamp(1, 4) {
             1 => self.sample_k::<1>(map, |_, _| ()),
             2 => self.sample_k::<2>(map, |_, _| ()),
@@ -753,19 +768,24 @@ impl Footprint {
         }
     }
 
-    /// k×k samples over the footprint into `values` (k recorded in
-    /// `k_out`); returns their mean.
+    /// k×k values over the footprint into `values` (k recorded in
+    /// `k_out`), each the mean of its part (exact) or a sample of it;
+    /// returns their mean.
     #[inline]
     pub(super) fn sample(
         &self,
         map: &EquirectMap,
         k: usize,
+        filter: MapFilter,
         values: &mut [f64; 16],
         k_out: &mut usize,
     ) -> f64 {
         let k = k.clamp(1, 4);
         *k_out = k;
         let store = |i: usize, v: f64| values[i] = v;
+        if filter == MapFilter::Exact {
+            return self.exact_parts(map, k, store);
+        }
         match k {
             1 => self.sample_k::<1>(map, store),
             2 => self.sample_k::<2>(map, store),
@@ -795,6 +815,27 @@ impl Footprint {
             let (hx, hy) = (0.5 * (1.0 + sx2).sqrt(), 0.5 * (1.0 + sy2).sqrt());
             self.each::<K>(|x, y| map.box_average_texel(x, y, hx, hy), &mut store)
         }
+    }
+
+    /// The exact means of the k×k parts, passed to `store`; their mean
+    /// (the whole footprint's exact mean: the parts have equal areas).
+    fn exact_parts(&self, map: &EquirectMap, k: usize, mut store: impl FnMut(usize, f64)) -> f64 {
+        let (a1, a2) = (self.a1, self.a2);
+        let kf = k as f64;
+        let (b1, b2) = ((a1.0 / kf, a1.1 / kf), (a2.0 / kf, a2.1 / kf));
+        let mut sum = 0.0;
+        for p in 0..k {
+            let v = (p as f64 + 0.5) / kf - 0.5;
+            for q in 0..k {
+                let u = (q as f64 + 0.5) / kf - 0.5;
+                let x = self.x + a1.0 * v + a2.0 * u;
+                let y = self.y + a1.1 * v + a2.1 * u;
+                let s = map.parallelogram_mean(x, y, b1, b2);
+                store(p * k + q, s);
+                sum += s;
+            }
+        }
+        sum / (k * k) as f64
     }
 
     /// Squared size (sx², sy²) [texels²] of the box standing for one of

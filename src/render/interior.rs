@@ -71,6 +71,18 @@ impl InteriorMask {
         self.count
     }
 
+    /// Whether image pixel (i, j) was integrated per pixel.
+    pub fn contains(&self, i: usize, j: usize) -> bool {
+        let r = &self.roi;
+        let inside = i >= r.x0 && i < r.x1 && j >= r.y0 && j < r.y1;
+        inside
+            && self
+                .interior
+                .get((j - r.y0) * r.width() + (i - r.x0))
+                .copied()
+                .unwrap_or(false)
+    }
+
     /// Whether every pixel of [x0, x1) × [y0, y1) (image coordinates) is
     /// interior.
     #[inline]
@@ -423,7 +435,7 @@ impl Lattice {
                     a1: (q[4], q[5]),
                     a2: (q[6], q[7]),
                 }
-                .mean(map, frame.texture_samples)
+                .mean(map, frame.texture_samples, frame.map_filter)
                     * frame.map_scale
             }
         };
@@ -728,7 +740,10 @@ impl PixelRays {
         };
         let albedo = match &frame.body.albedo_map {
             None => frame.albedo,
-            Some(map) => self.footprint(map, &s).mean(map, frame.texture_samples) * frame.map_scale,
+            Some(map) => {
+                let f = self.footprint(map, &s);
+                f.mean(map, frame.texture_samples, frame.map_filter) * frame.map_scale
+            }
         };
         let midpoint = self.flux_at(frame, &s, albedo);
         if self.midpoint_suffices(&s) {

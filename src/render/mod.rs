@@ -53,6 +53,10 @@ pub struct RenderSettings {
     /// pixel scale while the BRDF does not, so each cap's PF is split over
     /// k×k parts of its footprint by the map alone.
     pub texture_samples: usize,
+    /// How a pixel's or cap's albedo is averaged over its map footprint:
+    /// `exact` (the bilinear map's exact mean over the footprint
+    /// parallelogram) or `samples` (k×k samples, `texture_samples`).
+    pub map_filter: MapFilter,
     /// `pixels` (default): pixels whose whole preimage is lit and visible
     /// are integrated per pixel ([`interior`]), the rest by the lune's caps;
     /// `caps`: the lune's caps everywhere.
@@ -90,6 +94,7 @@ impl Default for RenderSettings {
             geometry: GeometryMode::Exact,
             sub_bands: None,
             texture_samples: 2,
+            map_filter: MapFilter::Samples,
             interior: Interior::Pixels,
             node_spacing: interior::DEFAULT_NODE_SPACING,
             pixel_tolerance: interior::DEFAULT_PIXEL_TOLERANCE,
@@ -135,6 +140,19 @@ impl RenderSettings {
     pub fn density(&self) -> f64 {
         self.caps_per_pixel.unwrap_or(DEFAULT_DENSITY)
     }
+}
+
+/// How the albedo map is averaged over a pixel's or cap's footprint.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum MapFilter {
+    /// The exact mean of the map's bilinear interpolant over the footprint
+    /// parallelogram ([`crate::scene::EquirectMap::parallelogram_mean`]);
+    /// caps take it over each of their k×k parts.
+    Exact,
+    /// k×k bilinear samples or box averages (`texture_samples`).
+    #[default]
+    Samples,
 }
 
 /// Geometry of the cap integrals.
@@ -224,6 +242,12 @@ impl Renderer {
         }
     }
 
+    /// Whether image pixel (i, j) was integrated per pixel in the last
+    /// render with `interior = "pixels"` (else it came from the caps).
+    pub fn is_interior_pixel(&self, i: usize, j: usize) -> bool {
+        self.interior.contains(i, j)
+    }
+
     /// The pixel grid.
     pub fn camera(&self) -> &Pinhole {
         &self.camera
@@ -299,6 +323,7 @@ impl Renderer {
             min_caps: settings.min_caps as f64,
             distant,
             texture_samples: settings.texture_samples,
+            map_filter: settings.map_filter,
             occulter: state.occulter.and_then(|o| {
                 let rel = o.position - state.body_position;
                 let local = DVec3::new(rel.dot(lune.x), rel.dot(lune.y), rel.dot(lune.z));
