@@ -675,7 +675,9 @@ impl Texture {
 
     /// Grid `pf` over the k×k sub-quadrilaterals of `quad` (corners at
     /// (t0,s0), (t0,s1), (t1,s1), (t1,s0)) in proportion to the samples
-    /// times the radiance shape, interpolated from the cap's corners.
+    /// times the flux the radiance shape (interpolated from the cap's
+    /// corners) gives over each sub-quadrilateral's area, so that a
+    /// constant map splits as no map does.
     #[inline]
     fn grid(&self, sink: &mut Sink, quad: &[(f64, f64); 4], shape: &[f64; 4], pf: f64) {
         // A cap inside one pixel needs no split.
@@ -702,8 +704,10 @@ impl Texture {
                 let (u0, u1) = (q as f64 * step, (q + 1) as f64 * step);
                 let c = [at(v0, u0), at(v0, u1), at(v1, u1), at(v1, u0)];
                 let h = [c[0].1, c[1].1, c[2].1, c[3].1];
-                let share = self.values[p * k + q] * 0.25 * (h[0] + h[1] + h[2] + h[3]);
-                subs[p * k + q] = ([c[0].0, c[1].0, c[2].0, c[3].0], h, share);
+                let sub = [c[0].0, c[1].0, c[2].0, c[3].0];
+                let flux = quad_area(&sub) * 0.25 * (h[0] + h[1] + h[2] + h[3]);
+                let share = self.values[p * k + q] * flux;
+                subs[p * k + q] = (sub, h, share);
                 sum += share;
             }
         }
@@ -1148,6 +1152,13 @@ fn grid_quad_shaped(sink: &mut Sink, quad: &[(f64, f64); 4], shape: &[f64; 4], v
     for &(i, j, w) in &cells[..n] {
         sink.add(i, j, value * w / total);
     }
+}
+
+/// Area of a quadrilateral (shoelace).
+#[inline]
+fn quad_area(q: &[(f64, f64); 4]) -> f64 {
+    let cross = |a: (f64, f64), b: (f64, f64)| a.0 * b.1 - b.0 * a.1;
+    0.5 * (cross(q[0], q[1]) + cross(q[1], q[2]) + cross(q[2], q[3]) + cross(q[3], q[0])).abs()
 }
 
 /// Gradient of the plane through a quadrilateral's corner values, from its
