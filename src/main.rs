@@ -70,6 +70,11 @@ enum Command {
         /// targets as lines): DIR/bench.png, or the given PATH.png.
         #[arg(long, value_name = "DIR|PATH.png")]
         plot: Option<PathBuf>,
+        /// Also write every setting's image and the reference (radiance per
+        /// unit solar irradiance at 1 au, f32 TIFF) and each phase's
+        /// geometry (JSON) into DIR, for tools/mitsuba_moon.py.
+        #[arg(long, value_name = "DIR")]
+        images: Option<PathBuf>,
     },
     /// Calibrate the facility's screen: `radiometric` (display LUT),
     /// `flat` (flat field), `geometric` (geometry file), `verify`
@@ -138,6 +143,7 @@ fn main() -> ExitCode {
             repeats,
             json,
             plot,
+            images,
         } => cli::bench(
             &scene,
             &cli::BenchSweep {
@@ -151,6 +157,7 @@ fn main() -> ExitCode {
             repeats,
             json.as_deref(),
             plot.as_deref(),
+            images.as_deref(),
         ),
         Command::Validate(ValidateCommand::Amie {
             img,
