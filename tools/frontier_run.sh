@@ -5,7 +5,7 @@
 # each phase, then Mitsuba's converged references, then the scoring and the
 # figure. Both renderers run at the same niceness. Needs
 # tools/mitsuba_setup.sh first. Outputs under out/frontier/ (git-ignored)
-# and docs/frontier_mitsuba.png. About 25 min on 2 cores.
+# and docs/frontier_mitsuba.png. About 40 min on 2 shared cores.
 set -eu
 PHASES=${PHASES:-"30 105"}
 REF_SPP=${REF_SPP:-9216}
@@ -23,5 +23,10 @@ for p in $PHASES; do
     nice python3 tools/mitsuba_moon.py reference --state $OUT/opt/phase${p}_state.json \
         --spp $REF_SPP --pass-spp 256 --out $OUT/ref/phase${p}.npy
 done
-python3 tools/frontier.py --opt-dir $OUT/opt --mit-dir $OUT/mitsuba --ref-dir $OUT/ref \
+mkdir -p $OUT/quad
+for p in $PHASES; do  # the independent float64 reference both are scored against
+    nice python3 tools/moon_quadrature.py --state $OUT/opt/phase${p}_state.json --out $OUT/quad/phase${p}.npy
+done
+python3 tools/frontier.py --opt-dir $OUT/opt --mit-dir $OUT/mitsuba --ref-dir $OUT/quad \
+    --mitsuba-ref-dir $OUT/ref \
     --png docs/frontier_mitsuba.png --json $OUT/frontier.json

@@ -180,6 +180,12 @@ def cmd_render(args):
           f"(min {min(times):.2f}), wrote {args.out}")
 
 
+def actual_spp(spp):
+    """The sample count the multijitter sampler really takes for `spp`
+    (it rounds up to a near-square grid: 32 -> 35, 128 -> 132)."""
+    return mi.load_dict({"type": "multijitter", "sample_count": spp}).sample_count()
+
+
 def cmd_sweep(args):
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -191,7 +197,8 @@ def cmd_sweep(args):
         med, times, img = timed(scene, spp, args.repeats)
         name = f"mitsuba_phase{phase:g}_spp{spp}.npy"
         np.save(out / name, img.astype(np.float32))
-        rows.append({"phase_deg": phase, "spp": spp, "median_ms": med,
+        rows.append({"phase_deg": phase, "spp": spp, "spp_actual": actual_spp(spp),
+                     "median_ms": med,
                      "min_ms": min(times), "times_ms": times, "image": name})
         print(f"phase {phase:g} spp {spp}: median {med:.2f} ms (min {min(times):.2f})", flush=True)
     path = out / f"mitsuba_phase{phase:g}.json"
