@@ -23,7 +23,7 @@ ref_peak the reference's brightest pixel:
   total flux error |sum img - sum ref| / sum ref.
 Prints markdown tables and the time ratio at equal interior p99 and at
 equal edge p99 (Mitsuba's time interpolated in log-log along its spp
-curve; extrapolated with the fitted slope beyond its last point, flagged),
+curve; beyond it a bound, '>' or '<', no extrapolation),
 and draws the PNG.
 """
 import argparse
@@ -93,6 +93,19 @@ def masks(state, radius):
     return interior, edge
 
 
+def cached_masks(stem, state, radius):
+    """masks(), kept in STEM_masks.npz beside the state it was made from."""
+    path = Path(f"{stem}_masks.npz")
+    key = json.dumps(state, sort_keys=True) + f"{radius} {SUB}"
+    if path.exists():
+        z = np.load(path)
+        if str(z["key"]) == key:
+            return z["interior"], z["edge"]
+    interior, edge = masks(state, radius)
+    np.savez(path, interior=interior, edge=edge, key=key)
+    return interior, edge
+
+
 def score(img, ref, interior, edge):
     peak = ref.max()
     e = (img - ref) / peak
@@ -111,18 +124,20 @@ def read_tiff(path):
 
 
 def interp_time(curve, err):
-    """Mitsuba's time at error `err` along its (err, time) curve, log-log;
-    beyond the curve, the slope of its last (first) three points."""
-    e = np.log([c[0] for c in curve])
-    t = np.log([c[1] for c in curve])
-    order = np.argsort(e)
-    e, t = e[order], t[order]
+    """Mitsuba's time at error `err` along its (err, time) curve, log-log.
+    Beyond the curve no extrapolation: below Mitsuba's smallest error (its
+    converged floor, see BENCHMARKS.md) the time of its most accurate point
+    is a lower bound ('>'); above its largest (1 spp), the 1-spp time is an
+    upper bound ('<')."""
+    pts = sorted(curve)
+    e = np.log([c[0] for c in pts])
+    t = np.log([c[1] for c in pts])
     x = np.log(err)
-    if e[0] <= x <= e[-1]:
-        return float(np.exp(np.interp(x, e, t))), False
-    sl = slice(0, 3) if x < e[0] else slice(-3, None)
-    k, c = np.polyfit(e[sl], t[sl], 1)
-    return float(np.exp(k * x + c)), True
+    if x < e[0]:
+        return float(np.exp(t[0])), ">"
+    if x > e[-1]:
+        return float(np.exp(t[-1])), "<"
+    return float(np.exp(np.interp(x, e, t))), ""
 
 
 def setting_name(r):
@@ -149,7 +164,7 @@ def main():
     result = {}
     for ph in phases:
         state = json.loads((Path(args.opt_dir) / f"phase{ph:g}_state.json").read_text())
-        interior, edge = masks(state, radius)
+        interior, edge = cached_masks(Path(args.opt_dir) / f"phase{ph:g}", state, radius)
         ref = np.load(Path(args.ref_dir) / f"phase{ph:g}.npy").astype(np.float64)
         opt_ref = read_tiff(Path(args.opt_dir) / f"phase{ph:g}_ref.tiff")
         pts = {"interior_px": int(interior.sum()), "edge_px": int(edge.sum()),
@@ -172,18 +187,19 @@ def main():
         for o in pts["optistim"]:
             for key in ("int_p99", "edge_p99"):
                 curve = [(m[key], m["ms"]) for m in pts["mitsuba"]]
-                t, extrap = interp_time(curve, o[key])
+                t, bound = interp_time(curve, o[key])
                 o[f"ratio_{key}"] = t / o["ms"]
-                o[f"ratio_{key}_extrapolated"] = extrap
+                o[f"ratio_{key}_bound"] = bound
         result[ph] = pts
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps({str(k): v for k, v in result.items()}, indent=1))
     print_tables(result)
     plot(result, args.png, args.default)
+    plot_floor(phases, args, str(Path(args.png).with_name(Path(args.png).stem + "_floor.png")))
 
 
 def fmt_ratio(o, key):
-    return f"{o[f'ratio_{key}']:.1f}{'*' if o[f'ratio_{key}_extrapolated'] else ''}"
+    return f"{o[f'ratio_{key}_bound']}{o[f'ratio_{key}']:.1f}"
 
 
 def print_tables(result):
@@ -218,11 +234,37 @@ def pareto(points, key):
     return front
 
 
+def plot_floor(phases, args, png):
+    """Mitsuba's converged image minus the reference, cropped to the disk:
+    where Mitsuba's error floor sits."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, len(phases), figsize=(7 * len(phases), 6.5))
+    for ax, ph in zip(np.atleast_1d(axes), phases):
+        mref = Path(args.mitsuba_ref_dir) / f"phase{ph:g}.npy"
+        if not mref.exists():
+            continue
+        ref = np.load(Path(args.ref_dir) / f"phase{ph:g}.npy")
+        d = (np.load(mref) - ref) / ref.max()
+        ys, xs = np.nonzero(ref > 0)
+        y0, x0 = ys.min() - 3, xs.min() - 3
+        im = ax.imshow(d[y0:ys.max() + 4, x0:xs.max() + 4], cmap="RdBu_r", vmin=-3e-3, vmax=3e-3,
+                       extent=(x0, xs.max() + 4, ys.max() + 4, y0))
+        fig.colorbar(im, ax=ax, label="(Mitsuba − quadrature) / peak")
+        ax.set_title(f"{ph:g}°: Mitsuba 3 converged (9216 spp) − float64 quadrature")
+        ax.set_xlabel("column [px]")
+        ax.set_ylabel("row [px]")
+    fig.tight_layout()
+    fig.savefig(png, dpi=80)
+    print(f"wrote {png}")
+
+
 def plot(result, png, default):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(14, 6))
+    fig, axes = plt.subplots(1, 2, figsize=(14, 8.5))
     colours = {ph: c for ph, c in zip(result, ["tab:blue", "tab:red", "tab:green", "tab:purple"])}
     for ax, key, what in [(axes[0], "int_p99", "interior"), (axes[1], "edge_p99", "edge")]:
         for ph, pts in result.items():
@@ -242,14 +284,16 @@ def plot(result, png, default):
             d = [x for x in o if x["setting"] == default]
             if d:
                 ax.plot([d[0][key]], [d[0]["ms"]], "*", ms=16, color=c, mec="k",
-                        label=f"optistim default, {ph:g}°: {d[0][f'ratio_{key}']:.0f}× faster")
+                        label=f"optistim default ({default}), {ph:g}°: "
+                              f"{d[0][f'ratio_{key}_bound']}{d[0][f'ratio_{key}']:.0f}× faster")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel(f"{what} per-pixel error p99, |img − ref| / ref peak")
+        ax.set_xlabel(f"{what} per-pixel error p99, |img − ref| / ref peak "
+                      "(ref: float64 quadrature)")
         ax.set_ylabel("render time per frame [ms] (median)")
         ax.set_title(f"Time against {what} error")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=1)
     fig.suptitle("Mapped Lambert Moon (configs/moon_bench_lambert.toml, 1024², 410 px disk), "
                  "optistim against Mitsuba 3 llvm_ad_mono, same machine and session")
     fig.tight_layout()

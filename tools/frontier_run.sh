@@ -14,18 +14,18 @@ cargo build --release
 mkdir -p $OUT/opt $OUT/mitsuba $OUT/ref
 nice ./target/release/optistim bench --scene configs/moon_bench_lambert.toml \
     --phases "$(echo $PHASES | tr ' ' ,)" --interior pixels,caps --densities 0.5,1,2 \
-    --texture-samples 1,2,3,4 --repeats 11 --json $OUT/opt/bench.json --images $OUT/opt
+    --texture-samples 1,2,3,4 --repeats 21 --json $OUT/opt/bench.json --images $OUT/opt
 for p in $PHASES; do
     nice python3 tools/mitsuba_moon.py sweep --state $OUT/opt/phase${p}_state.json \
         --spp 1,2,4,8,16,32,64,128,256 --repeats 7 --out-dir $OUT/mitsuba
 done
-for p in $PHASES; do
-    nice python3 tools/mitsuba_moon.py reference --state $OUT/opt/phase${p}_state.json \
+for p in $PHASES; do  # references are kept between runs: delete to redo
+    [ -e $OUT/ref/phase${p}.npy ] || nice python3 tools/mitsuba_moon.py reference --state $OUT/opt/phase${p}_state.json \
         --spp $REF_SPP --pass-spp 256 --out $OUT/ref/phase${p}.npy
 done
 mkdir -p $OUT/quad
 for p in $PHASES; do  # the independent float64 reference both are scored against
-    nice python3 tools/moon_quadrature.py --state $OUT/opt/phase${p}_state.json --out $OUT/quad/phase${p}.npy
+    [ -e $OUT/quad/phase${p}.npy ] || nice python3 tools/moon_quadrature.py --state $OUT/opt/phase${p}_state.json --out $OUT/quad/phase${p}.npy
 done
 python3 tools/frontier.py --opt-dir $OUT/opt --mit-dir $OUT/mitsuba --ref-dir $OUT/quad \
     --mitsuba-ref-dir $OUT/ref \
