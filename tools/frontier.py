@@ -285,7 +285,7 @@ def plot(result, png, default):
             if d:
                 ax.plot([d[0][key]], [d[0]["ms"]], "*", ms=16, color=c, mec="k",
                         label=f"optistim default ({default}), {ph:g}°: "
-                              f"{d[0][f'ratio_{key}_bound']}{d[0][f'ratio_{key}']:.0f}× faster")
+                              f"{d[0][f'ratio_{key}_bound']}{d[0][f'ratio_{key}']:.3g}× faster")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel(f"{what} per-pixel error p99, |img − ref| / ref peak "
