@@ -76,6 +76,50 @@ pub(crate) struct BenchRow {
     interior_error_p99: f64,
     /// Median wall time of each stage: layout, mask, caps, interior [ms].
     stage_median_ms: [f64; 4],
+    /// This setting's image under `--images DIR` (file name in DIR).
+    image: Option<String>,
+}
+
+/// `bench --images`: one render as radiance per unit solar irradiance at
+/// 1 au (flux over the pixel's exact solid angle), an f32 TIFF, so other
+/// renderers (tools/mitsuba_moon.py) can be compared pixel by pixel.
+fn save_bench_image(
+    dir: &Path,
+    name: &str,
+    flux: &[f32],
+    solid_angle: &[f32],
+    pin: &optistim::scene::Pinhole,
+) -> Result<()> {
+    let radiance: Vec<f32> = flux
+        .iter()
+        .zip(solid_angle)
+        .map(|(&f, &o)| if o > 0.0 { f / o } else { 0.0 })
+        .collect();
+    let path = dir.join(format!("{name}.tiff"));
+    output::write_f32_tiff(&path, pin.width, pin.height, &radiance)
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// `bench --images`: the geometry of one phase (the camera moved by
+/// `at_phase`) and the pinhole, as JSON, so another renderer sees the same
+/// scene.
+fn write_bench_state(dir: &Path, phase: f64, scene: &Scene) -> Result<()> {
+    let st = &scene.state;
+    let pin = &scene.camera.pinhole;
+    let quat = |q: DQuat| [q.w, q.x, q.y, q.z];
+    let state = serde_json::json!({
+        "phase_deg": phase,
+        "width": pin.width, "height": pin.height,
+        "fx": pin.fx, "fy": pin.fy, "cx": pin.cx, "cy": pin.cy,
+        "body_position": st.body_position.to_array(),
+        "body_attitude": quat(st.body_attitude),
+        "camera_position": st.camera_position.to_array(),
+        "camera_attitude": quat(st.camera_attitude),
+        "sun_position": st.sun_position.to_array(),
+    });
+    let path = dir.join(format!("phase{phase}_state.json"));
+    std::fs::write(&path, serde_json::to_string_pretty(&state)?)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// Place the camera so that the phase angle at the body is `phase_deg`,
@@ -142,6 +186,7 @@ pub fn bench(
     repeats: usize,
     json: Option<&Path>,
     plot: Option<&Path>,
+    images: Option<&Path>,
 ) -> Result<()> {
     let BenchSweep {
         phases,
@@ -183,6 +228,10 @@ pub fn bench(
     let filters = swept_or_scene(&filters, &scene_filter);
     let pin = base.camera.pinhole.clone();
     let mut renderer = Renderer::new(pin.clone());
+    let solid_angle = images.map(|_| pin.solid_angle_table());
+    if let Some(dir) = images {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     let mut rows = Vec::new();
     println!(
         "machine: {} threads; image {}x{}; model {}",
@@ -217,6 +266,10 @@ pub fn bench(
         renderer.render_flux(&scene.body, &scene.state, &settings, None);
         progress.inc(1);
         let reference: Vec<f32> = renderer.flux().to_vec();
+        if let (Some(dir), Some(omega)) = (images, &solid_angle) {
+            write_bench_state(dir, phase, &scene)?;
+            save_bench_image(dir, &format!("phase{phase}_ref"), &reference, omega, &pin)?;
+        }
         let ref_total: f64 = reference.iter().map(|&v| v as f64).sum();
         let ref_peak = reference.iter().cloned().fold(0.0f32, f32::max) as f64;
         let points = modes.iter().flat_map(|&m| {
@@ -267,6 +320,14 @@ pub fn bench(
                 percentile(&v, 0.5)
             });
             let flux = renderer.flux();
+            let image = match (images, &solid_angle) {
+                (Some(dir), Some(omega)) => {
+                    let name = format!("phase{phase}_row{}", rows.len());
+                    save_bench_image(dir, &name, flux, omega, &pin)?;
+                    Some(format!("{name}.tiff"))
+                }
+                _ => None,
+            };
             let total: f64 = flux.iter().map(|&v| v as f64).sum();
             // Per-pixel relative error over pixels above 1 % of the peak.
             let mut errors: Vec<f64> = flux
@@ -306,6 +367,7 @@ pub fn bench(
                 pixel_error_max: errors.last().copied().unwrap_or(f64::NAN),
                 interior_error_p99: percentile(&interior_errors, 0.99),
                 stage_median_ms,
+                image,
             };
             let [lay, mask, cap, int] = stage_median_ms;
             // The bar steps aside while the row is printed.

@@ -74,6 +74,11 @@ enum Command {
         /// targets as lines): DIR/bench.png, or the given PATH.png.
         #[arg(long, value_name = "DIR|PATH.png")]
         plot: Option<PathBuf>,
+        /// Also write every setting's image and the reference (radiance per
+        /// unit solar irradiance at 1 au, f32 TIFF) and each phase's
+        /// geometry (JSON) into DIR, for tools/mitsuba_moon.py.
+        #[arg(long, value_name = "DIR")]
+        images: Option<PathBuf>,
     },
     /// Calibrate the facility's screen: `radiometric` (display LUT),
     /// `flat` (flat field), `geometric` (geometry file), `verify`
@@ -143,6 +148,7 @@ fn main() -> ExitCode {
             repeats,
             json,
             plot,
+            images,
         } => cli::bench(
             &scene,
             &cli::BenchSweep {
@@ -157,6 +163,7 @@ fn main() -> ExitCode {
             repeats,
             json.as_deref(),
             plot.as_deref(),
+            images.as_deref(),
         ),
         Command::Validate(ValidateCommand::Amie {
             img,
