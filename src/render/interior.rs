@@ -753,9 +753,10 @@ impl PixelRays {
     ///
     /// With the exact mean (the exact filter, or the adaptive one where
     /// it refined), each Gauss point takes the exact mean of its own cell
-    /// of the footprint (the pixel cut where the points' weights add up):
-    /// the product rule per cell, which keeps the map's variation across
-    /// the pixel that a single mean times every point's geometry loses.
+    /// of the pixel (cut where the points' weights add up), mapped by the
+    /// point's own footprint: the product rule per cell, which keeps the
+    /// map's variation across the pixel that a single mean times every
+    /// point's geometry loses.
     fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
         let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
         let Some(s) = self.surface(u, v) else {
@@ -771,7 +772,7 @@ impl PixelRays {
                     frame.map_filter,
                     frame.map_tolerance,
                 );
-                (mean * frame.map_scale, exact.then_some((map, f)))
+                (mean * frame.map_scale, exact.then_some(map))
             }
         };
         let midpoint = self.flux_at(frame, &s, albedo);
@@ -794,8 +795,13 @@ impl PixelRays {
                     whole += w * f;
                     by_cell += match &exact {
                         None => w * f,
-                        Some((map, fp)) => {
-                            let c = fp.part(cu, cv);
+                        Some(map) => {
+                            // The cell around the point, on the point's own
+                            // footprint: near the limb the centre's
+                            // parallelogram is a poor map of the pixel's
+                            // outer cells.
+                            let fp = self.footprint(map, &g);
+                            let c = fp.part((cu.0 - du, cu.1 - du), (cv.0 - dv, cv.1 - dv));
                             let a = map.parallelogram_mean(c.x, c.y, c.a1, c.a2) * frame.map_scale;
                             w * self.flux_at(frame, &g, a)
                         }
