@@ -504,9 +504,7 @@ impl Frame<'_> {
                         // Albedo sampled k×k times over the cap's footprint.
                         let e1 = (xb * (ct * cp) + yb * (ct * sp) - zb * st) * d_theta;
                         let e2 = (yb * cp - xb * sp) * (st * d_phi);
-                        let k = self.texture_samples;
-                        let (filter, tol) = (self.map_filter, self.map_tolerance);
-                        texture.sample(map, n_body, e1, e2, k, filter, tol) * self.map_scale
+                        texture.sample(map, n_body, e1, e2, self) * self.map_scale
                     }
                 };
                 let integrand = self.integrand(
@@ -663,24 +661,15 @@ struct Texture {
 
 impl Texture {
     /// Sample the map over the cap centred on the body-fixed unit direction
-    /// `n` with edge vectors `e1` (along θ) and `e2` (along φ); returns the
-    /// mean.
+    /// `n` with edge vectors `e1` (along θ) and `e2` (along φ), with
+    /// `frame`'s samples, filter and threshold; returns the mean.
     #[inline]
-    fn sample(
-        &mut self,
-        map: &EquirectMap,
-        n: DVec3,
-        e1: DVec3,
-        e2: DVec3,
-        k: usize,
-        filter: MapFilter,
-        tolerance: f64,
-    ) -> f64 {
+    fn sample(&mut self, map: &EquirectMap, n: DVec3, e1: DVec3, e2: DVec3, frame: &Frame) -> f64 {
         Footprint::new(map, n, e1, e2).sample(
             map,
-            k,
-            filter,
-            tolerance,
+            frame.texture_samples,
+            frame.map_filter,
+            frame.map_tolerance,
             &mut self.values,
             &mut self.k,
         )
