@@ -18,7 +18,8 @@
 //! the pixel tolerance (`[render] pixel_tolerance`, default
 //! [`DEFAULT_PIXEL_TOLERANCE`]) a pixel takes 2×2 Gauss points, and 4×4
 //! where the 2×2 rule moved far from the midpoint or within
-//! [`GAUSS2_MIN_PX`] of the limb.
+//! [`GAUSS2_MIN_PX`] of the limb. With the map's exact mean each Gauss
+//! point then takes its own cell's mean (`PixelRays::pixel_flux`).
 //!
 //! The classification is conservative: a pixel is interior only if every
 //! corner of its 3×3 neighbourhood hits the sphere lit and unshadowed, so a

@@ -61,7 +61,8 @@ pub struct RenderSettings {
     pub map_filter: MapFilter,
     /// The adaptive filter's threshold: where the k×k samples' range
     /// (max − min) reaches this fraction of their mean, the footprint
-    /// takes the exact mean. 0: always exact; above k² never.
+    /// takes the exact mean. 0: always exact; above k² never (for a
+    /// non-negative map). In [0, 100].
     pub map_tolerance: f64,
     /// `pixels` (default): pixels whose whole preimage is lit and visible
     /// are integrated per pixel ([`interior`]), the rest by the lune's caps;
