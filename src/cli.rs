@@ -57,6 +57,8 @@ pub(crate) struct BenchRow {
     caps_per_pixel: f64,
     texture_samples: usize,
     map_filter: MapFilter,
+    /// The adaptive filter's threshold (the scene's with other filters).
+    map_tolerance: f64,
     node_spacing: usize,
     pixel_tolerance: f64,
     interior_pixels: usize,
@@ -142,6 +144,19 @@ fn at_phase(scene: &mut Scene, phase_deg: f64) {
     st.camera_attitude = DQuat::from_mat3(&glam::DMat3::from_cols(x, y, boresight)).normalize();
 }
 
+/// The map filter's column suffix: ` exact`, or ` adaptive THRESHOLD`
+/// with the fraction of interior pixels whose mean went exact.
+fn filter_label(filter: MapFilter, threshold: f64, exact: usize, interior: usize) -> String {
+    match filter {
+        MapFilter::Samples => String::new(),
+        MapFilter::Exact => " exact".into(),
+        MapFilter::Adaptive => format!(
+            " adaptive {threshold:.0e} ({:.1} % exact)",
+            100.0 * exact as f64 / interior.max(1) as f64
+        ),
+    }
+}
+
 fn percentile(sorted: &[f64], p: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
@@ -167,6 +182,10 @@ pub struct BenchSweep {
     pub node_spacings: Vec<usize>,
     /// Interior pixel quadrature tolerances.
     pub pixel_tolerances: Vec<f64>,
+    /// Adaptive map filter thresholds (only with `adaptive`).
+    pub map_tolerances: Vec<f64>,
+    /// The reference's caps per pixel; None: 4× the densest timed.
+    pub reference_density: Option<f64>,
 }
 
 /// The values given on the command line, or the scene's own when none.
@@ -196,14 +215,17 @@ pub fn bench(
         map_filters,
         node_spacings,
         pixel_tolerances,
+        map_tolerances,
+        reference_density,
     } = sweep;
     let filters = map_filters
         .iter()
         .map(|m| match m.as_str() {
             "exact" => Ok(MapFilter::Exact),
             "samples" => Ok(MapFilter::Samples),
+            "adaptive" => Ok(MapFilter::Adaptive),
             other => Err(anyhow::anyhow!(
-                "--map-filter: `{other}`: expected exact or samples"
+                "--map-filter: `{other}`: expected exact, samples or adaptive"
             )),
         })
         .collect::<Result<Vec<_>>>()?;
@@ -226,6 +248,21 @@ pub fn bench(
     let texture_samples = swept_or_scene(texture_samples, &scene_samples);
     let scene_filter = [base.render.map_filter];
     let filters = swept_or_scene(&filters, &scene_filter);
+    let scene_map_tolerance = [base.render.map_tolerance];
+    let map_tolerances = swept_or_scene(map_tolerances, &scene_map_tolerance);
+    // (filter, threshold): the thresholds apply to the adaptive filter only.
+    let filters: Vec<(MapFilter, f64)> = filters
+        .iter()
+        .flat_map(|&f| {
+            let tols: &[f64] = if f == MapFilter::Adaptive {
+                map_tolerances
+            } else {
+                &scene_map_tolerance
+            };
+            tols.iter().map(move |&t| (f, t))
+        })
+        .collect();
+    let filters = &filters;
     let pin = base.camera.pinhole.clone();
     let mut renderer = Renderer::new(pin.clone());
     let solid_angle = images.map(|_| pin.solid_angle_table());
@@ -255,7 +292,8 @@ pub fn bench(
         let mut scene = base.clone();
         at_phase(&mut scene, phase);
         // Reference: 16× the sample density of the densest setting (4× per axis).
-        let ref_density = 4.0 * densities.iter().cloned().fold(0.0, f64::max);
+        let ref_density = reference_density
+            .unwrap_or_else(|| 4.0 * densities.iter().cloned().fold(0.0, f64::max));
         let mut settings = scene.render.clone();
         settings.caps_per_pixel = Some(ref_density);
         settings.min_caps = settings.min_caps.max(256);
@@ -263,6 +301,7 @@ pub fn bench(
         // The map's exact means over each cap's parts: a reference that
         // converges without sampling error of its own.
         settings.map_filter = MapFilter::Exact;
+        settings.check().context("--reference-density")?;
         renderer.render_flux(&scene.body, &scene.state, &settings, None);
         progress.inc(1);
         let reference: Vec<f32> = renderer.flux().to_vec();
@@ -282,8 +321,9 @@ pub fn bench(
                     pixel_tolerances.iter().map(move |&e| (m, d, k, f, n, e))
                 })
         });
-        for (mode, density, samples, filter, spacing, tolerance) in points {
+        for (mode, density, samples, (filter, map_tolerance), spacing, tolerance) in points {
             settings.map_filter = filter;
+            settings.map_tolerance = map_tolerance;
             settings.node_spacing = spacing;
             settings.pixel_tolerance = tolerance;
             settings.caps_per_pixel = Some(density);
@@ -353,6 +393,7 @@ pub fn bench(
                 caps_per_pixel: density,
                 texture_samples: samples,
                 map_filter: filter,
+                map_tolerance,
                 node_spacing: spacing,
                 pixel_tolerance: tolerance,
                 interior_pixels,
@@ -378,7 +419,7 @@ pub fn bench(
                 row.caps_per_pixel,
                 samples,
                 samples,
-                if filter == MapFilter::Exact { " exact" } else { "" },
+                filter_label(filter, map_tolerance, interior_direct.map_exact, interior_pixels),
                 row.caps,
                 row.caps_integrated,
                 row.interior_pixels,

@@ -52,7 +52,7 @@ enum Command {
         /// time; default: the scene's.
         #[arg(long, value_delimiter = ',')]
         texture_samples: Vec<usize>,
-        /// Albedo-map filters to time: `exact`, `samples`; default: the
+        /// Albedo-map filters to time: `exact`, `samples`, `adaptive`; default: the
         /// scene's. The reference always takes the exact filter.
         #[arg(long, value_delimiter = ',')]
         map_filter: Vec<String>,
@@ -64,6 +64,14 @@ enum Command {
         /// pixel_tolerance`); default: the scene's.
         #[arg(long, value_delimiter = ',')]
         pixel_tolerance: Vec<f64>,
+        /// Adaptive map filter thresholds to time (`[render]
+        /// map_tolerance`, with `--map-filter adaptive`); default: the
+        /// scene's.
+        #[arg(long, value_delimiter = ',')]
+        map_tolerance: Vec<f64>,
+        /// The reference's caps per pixel (default: 4× the densest timed).
+        #[arg(long)]
+        reference_density: Option<f64>,
         /// Repetitions per point (median reported).
         #[arg(long, default_value_t = 30)]
         repeats: usize,
@@ -145,6 +153,8 @@ fn main() -> ExitCode {
             map_filter,
             node_spacing,
             pixel_tolerance,
+            map_tolerance,
+            reference_density,
             repeats,
             json,
             plot,
@@ -159,6 +169,8 @@ fn main() -> ExitCode {
                 map_filters: map_filter,
                 node_spacings: node_spacing,
                 pixel_tolerances: pixel_tolerance,
+                map_tolerances: map_tolerance,
+                reference_density,
             },
             repeats,
             json.as_deref(),

@@ -186,8 +186,12 @@ pub struct Frame<'a> {
     pub occulter: Option<(DVec3, f64)>,
     /// Albedo samples per cap along each axis (1–4).
     pub texture_samples: usize,
-    /// Exact footprint means or k×k samples.
+    /// Exact footprint means, k×k samples, or samples refined to exact
+    /// where their spread exceeds `map_tolerance`.
     pub map_filter: MapFilter,
+    /// Relative spread of the k×k samples above which the adaptive filter
+    /// takes the exact mean.
+    pub map_tolerance: f64,
 }
 
 /// Radius of the solar photosphere [m].
@@ -500,8 +504,7 @@ impl Frame<'_> {
                         // Albedo sampled k×k times over the cap's footprint.
                         let e1 = (xb * (ct * cp) + yb * (ct * sp) - zb * st) * d_theta;
                         let e2 = (yb * cp - xb * sp) * (st * d_phi);
-                        let k = self.texture_samples;
-                        texture.sample(map, n_body, e1, e2, k, self.map_filter) * self.map_scale
+                        texture.sample(map, n_body, e1, e2, self) * self.map_scale
                     }
                 };
                 let integrand = self.integrand(
@@ -658,19 +661,18 @@ struct Texture {
 
 impl Texture {
     /// Sample the map over the cap centred on the body-fixed unit direction
-    /// `n` with edge vectors `e1` (along θ) and `e2` (along φ); returns the
-    /// mean.
+    /// `n` with edge vectors `e1` (along θ) and `e2` (along φ), with
+    /// `frame`'s samples, filter and threshold; returns the mean.
     #[inline]
-    fn sample(
-        &mut self,
-        map: &EquirectMap,
-        n: DVec3,
-        e1: DVec3,
-        e2: DVec3,
-        k: usize,
-        filter: MapFilter,
-    ) -> f64 {
-        Footprint::new(map, n, e1, e2).sample(map, k, filter, &mut self.values, &mut self.k)
+    fn sample(&mut self, map: &EquirectMap, n: DVec3, e1: DVec3, e2: DVec3, frame: &Frame) -> f64 {
+        Footprint::new(map, n, e1, e2).sample(
+            map,
+            frame.texture_samples,
+            frame.map_filter,
+            frame.map_tolerance,
+            &mut self.values,
+            &mut self.k,
+        )
     }
 
     /// Grid `pf` over the k×k sub-quadrilaterals of `quad` (corners at
@@ -720,6 +722,36 @@ impl Texture {
     }
 }
 
+/// The range of a footprint's k×k samples: the adaptive filter's cheap
+/// estimate of the detail it holds.
+struct Spread {
+    lo: f64,
+    hi: f64,
+}
+
+impl Default for Spread {
+    fn default() -> Self {
+        Spread {
+            lo: f64::INFINITY,
+            hi: f64::NEG_INFINITY,
+        }
+    }
+}
+
+impl Spread {
+    #[inline(always)]
+    fn add(&mut self, v: f64) {
+        self.lo = self.lo.min(v);
+        self.hi = self.hi.max(v);
+    }
+
+    /// Whether (max − min) reaches `tolerance` × |mean| (always at 0).
+    #[inline(always)]
+    fn exceeds(&self, mean: f64, tolerance: f64) -> bool {
+        self.hi - self.lo >= tolerance * mean.abs()
+    }
+}
+
 /// A cap's (or pixel's) footprint on an albedo map: its centre in texel
 /// coordinates and its two edge vectors in texels (x east, y south).
 #[derive(Clone, Copy, Debug, Default)]
@@ -758,43 +790,95 @@ impl Footprint {
         }
     }
 
-    /// Mean albedo over a pixel's footprint: exact, or k×k samples.
+    /// Mean albedo over a pixel's footprint: exact, k×k samples, or
+    /// (adaptive) the samples unless their spread reaches `tolerance`; and
+    /// whether it is the exact mean.
     #[inline]
-    pub(super) fn mean(&self, map: &EquirectMap, k: usize, filter: MapFilter) -> f64 {
-        if filter == MapFilter::Exact {
-            return map.parallelogram_mean(self.x, self.y, self.a1, self.a2);
-        }
-        match k.clamp(1, 4) {
-            1 => self.sample_k::<1>(map, |_, _| ()),
-            2 => self.sample_k::<2>(map, |_, _| ()),
-            3 => self.sample_k::<3>(map, |_, _| ()),
-            _ => self.sample_k::<4>(map, |_, _| ()),
+    pub(super) fn filtered_mean(
+        &self,
+        map: &EquirectMap,
+        k: usize,
+        filter: MapFilter,
+        tolerance: f64,
+    ) -> (f64, bool) {
+        let exact = || {
+            (
+                map.parallelogram_mean(self.x, self.y, self.a1, self.a2),
+                true,
+            )
+        };
+        match filter {
+            MapFilter::Exact => exact(),
+            MapFilter::Samples => (self.samples_mean(map, k, |_, _| ()), false),
+            MapFilter::Adaptive => {
+                let mut spread = Spread::default();
+                let mean = self.samples_mean(map, k, |_, v| spread.add(v));
+                if spread.exceeds(mean, tolerance) {
+                    exact()
+                } else {
+                    (mean, false)
+                }
+            }
         }
     }
 
     /// k×k values over the footprint into `values` (k recorded in
-    /// `k_out`), each the mean of its part (exact) or a sample of it;
-    /// returns their mean.
+    /// `k_out`), each the mean of its part (exact) or a sample of it
+    /// (adaptive: the exact means where the samples' spread exceeds
+    /// `tolerance`); returns their mean.
     #[inline]
     pub(super) fn sample(
         &self,
         map: &EquirectMap,
         k: usize,
         filter: MapFilter,
+        tolerance: f64,
         values: &mut [f64; 16],
         k_out: &mut usize,
     ) -> f64 {
         let k = k.clamp(1, 4);
         *k_out = k;
         let store = |i: usize, v: f64| values[i] = v;
-        if filter == MapFilter::Exact {
-            return self.exact_parts(map, k, store);
+        match filter {
+            MapFilter::Exact => self.exact_parts(map, k, store),
+            MapFilter::Samples => self.samples_mean(map, k, store),
+            MapFilter::Adaptive => {
+                let mean = self.samples_mean(map, k, store);
+                let mut spread = Spread::default();
+                values[..k * k].iter().for_each(|&v| spread.add(v));
+                if spread.exceeds(mean, tolerance) {
+                    self.exact_parts(map, k, |i, v| values[i] = v)
+                } else {
+                    mean
+                }
+            }
         }
-        match k {
+    }
+
+    /// The k×k samples' mean (k clamped to 1..=4), each passed to `store`.
+    #[inline(always)]
+    fn samples_mean(&self, map: &EquirectMap, k: usize, store: impl FnMut(usize, f64)) -> f64 {
+        match k.clamp(1, 4) {
             1 => self.sample_k::<1>(map, store),
             2 => self.sample_k::<2>(map, store),
             3 => self.sample_k::<3>(map, store),
             _ => self.sample_k::<4>(map, store),
+        }
+    }
+
+    /// The part of this footprint over the pixel offsets [u0, u1] × [v0,
+    /// v1] (u along `a2`, v along `a1`, the whole footprint being
+    /// [−½, ½]²): the same parallelogram, cut.
+    #[inline]
+    pub(super) fn part(&self, (u0, u1): (f64, f64), (v0, v1): (f64, f64)) -> Footprint {
+        let (a1, a2) = (self.a1, self.a2);
+        let (u, v) = (0.5 * (u0 + u1), 0.5 * (v0 + v1));
+        let (su, sv) = (u1 - u0, v1 - v0);
+        Footprint {
+            x: self.x + a1.0 * v + a2.0 * u,
+            y: self.y + a1.1 * v + a2.1 * u,
+            a1: (a1.0 * sv, a1.1 * sv),
+            a2: (a2.0 * su, a2.1 * su),
         }
     }
 

@@ -18,7 +18,8 @@
 //! the pixel tolerance (`[render] pixel_tolerance`, default
 //! [`DEFAULT_PIXEL_TOLERANCE`]) a pixel takes 2×2 Gauss points, and 4×4
 //! where the 2×2 rule moved far from the midpoint or within
-//! [`GAUSS2_MIN_PX`] of the limb.
+//! [`GAUSS2_MIN_PX`] of the limb. With the map's exact mean each Gauss
+//! point then takes its own cell's mean (`PixelRays::pixel_flux`).
 //!
 //! The classification is conservative: a pixel is interior only if every
 //! corner of its 3×3 neighbourhood hits the sphere lit and unshadowed, so a
@@ -217,10 +218,15 @@ impl InteriorMask {
                         let interpolated =
                             lattice.and_then(|l| l.factors_at(columns, ii).map(|q| (l, q)));
                         let f = match interpolated {
-                            Some((l, q)) => l.pixel_flux(frame, q),
+                            Some((l, q)) => {
+                                let (f, exact) = l.pixel_flux(frame, q);
+                                counts.map_exact += usize::from(exact);
+                                f
+                            }
                             None => {
-                                let (f, points) = rays.pixel_flux(frame, i, j);
+                                let (f, points, exact) = rays.pixel_flux(frame, i, j);
                                 counts.add(points);
+                                counts.map_exact += usize::from(exact);
                                 f
                             }
                         };
@@ -239,9 +245,13 @@ impl InteriorMask {
 
 /// Interior pixels evaluated directly (not from the node lattice), by the
 /// points per axis of their quadrature: near the limb the midpoint rule
-/// gives way to 2×2 and 4×4 Gauss points (`[render] pixel_tolerance`).
+/// gives way to 2×2 and 4×4 Gauss points (`[render] pixel_tolerance`);
+/// and, of all interior pixels, those whose map mean was exact.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct DirectCounts {
+    /// Interior pixels (direct or not) whose map mean was exact: all with
+    /// the exact filter, those the adaptive filter refined, else none.
+    pub map_exact: usize,
     /// One point (the pixel centre).
     pub midpoint: usize,
     /// 2×2 Gauss points.
@@ -264,6 +274,7 @@ impl DirectCounts {
             midpoint: self.midpoint + o.midpoint,
             gauss2: self.gauss2 + o.gauss2,
             gauss4: self.gauss4 + o.gauss4,
+            map_exact: self.map_exact + o.map_exact,
         }
     }
 }
@@ -413,11 +424,12 @@ impl Lattice {
         Some(combine(q, &self.weights[offset], self.map_width))
     }
 
-    /// A pixel's flux from its interpolated factors.
+    /// A pixel's flux from its interpolated factors, and whether the map's
+    /// mean was exact.
     #[inline]
-    fn pixel_flux(&self, frame: &Frame, q: Factors) -> f64 {
-        let rho = match &frame.body.albedo_map {
-            None => 1.0,
+    fn pixel_flux(&self, frame: &Frame, q: Factors) -> (f64, bool) {
+        let (rho, exact) = match &frame.body.albedo_map {
+            None => (1.0, false),
             Some(map) => {
                 // Back into [0, W) (a division-free rem_euclid: x is within
                 // a map width of it).
@@ -429,17 +441,22 @@ impl Lattice {
                 } else {
                     q[2]
                 };
-                Footprint {
+                let (mean, exact) = Footprint {
                     x,
                     y: q[3],
                     a1: (q[4], q[5]),
                     a2: (q[6], q[7]),
                 }
-                .mean(map, frame.texture_samples, frame.map_filter)
-                    * frame.map_scale
+                .filtered_mean(
+                    map,
+                    frame.texture_samples,
+                    frame.map_filter,
+                    frame.map_tolerance,
+                );
+                (mean * frame.map_scale, exact)
             }
         };
-        ((q[0] + q[1] * rho) * rho).max(0.0)
+        (((q[0] + q[1] * rho) * rho).max(0.0), exact)
     }
 }
 
@@ -732,43 +749,89 @@ impl PixelRays {
     }
 
     /// Collected flux of interior pixel (i, j) per unit solar irradiance at
-    /// 1 au, evaluated directly, and the quadrature's points per axis.
-    fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize) {
+    /// 1 au, evaluated directly, the quadrature's points per axis, and
+    /// whether the map's mean was exact.
+    ///
+    /// With the exact mean (the exact filter, or the adaptive one where
+    /// it refined), each Gauss point takes the exact mean of its own cell
+    /// of the pixel (cut where the points' weights add up), mapped by the
+    /// point's own footprint: the product rule per cell, which keeps the
+    /// map's variation across the pixel that a single mean times every
+    /// point's geometry loses.
+    fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
         let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
         let Some(s) = self.surface(u, v) else {
-            return (0.0, 1);
+            return (0.0, 1, false);
         };
-        let albedo = match &frame.body.albedo_map {
-            None => frame.albedo,
+        let (albedo, exact) = match &frame.body.albedo_map {
+            None => (frame.albedo, None),
             Some(map) => {
                 let f = self.footprint(map, &s);
-                f.mean(map, frame.texture_samples, frame.map_filter) * frame.map_scale
+                let (mean, exact) = f.filtered_mean(
+                    map,
+                    frame.texture_samples,
+                    frame.map_filter,
+                    frame.map_tolerance,
+                );
+                (mean * frame.map_scale, exact.then_some(map))
             }
         };
         let midpoint = self.flux_at(frame, &s, albedo);
         if self.midpoint_suffices(&s) {
-            return (midpoint, 1);
+            return (midpoint, 1, exact.is_some());
         }
         let to_limb = self.to_limb(&s);
+        // The rule with the pixel's mean albedo (which decides between 2×2
+        // and 4×4, as the geometry alone would) and with each cell's.
         let gauss = |rule: &[(f64, f64)]| {
-            let mut sum = 0.0;
-            for &(du, wu) in rule {
-                for &(dv, wv) in rule {
-                    if let Some(g) = self.surface(u + du, v + dv) {
-                        sum += wu * wv * self.flux_at(frame, &g, albedo);
-                    }
+            let cells = gauss_cells(rule);
+            let (mut whole, mut by_cell) = (0.0, 0.0);
+            for (&(du, wu), &cu) in rule.iter().zip(&cells) {
+                for (&(dv, wv), &cv) in rule.iter().zip(&cells) {
+                    let Some(g) = self.surface(u + du, v + dv) else {
+                        continue;
+                    };
+                    let w = wu * wv;
+                    let f = self.flux_at(frame, &g, albedo);
+                    whole += w * f;
+                    by_cell += match &exact {
+                        None => w * f,
+                        Some(map) => {
+                            // The cell around the point, on the point's own
+                            // footprint: near the limb the centre's
+                            // parallelogram is a poor map of the pixel's
+                            // outer cells.
+                            let fp = self.footprint(map, &g);
+                            let c = fp.part((cu.0 - du, cu.1 - du), (cv.0 - dv, cv.1 - dv));
+                            let a = map.parallelogram_mean(c.x, c.y, c.a1, c.a2) * frame.map_scale;
+                            w * self.flux_at(frame, &g, a)
+                        }
+                    };
                 }
             }
-            sum
+            (whole, by_cell)
         };
-        let two = gauss(&GAUSS2);
+        let (two, two_cells) = gauss(&GAUSS2);
         let max_step = GAUSS2_MAX_STEP * self.tolerance;
         if to_limb >= GAUSS2_MIN_PX && (two - midpoint).abs() <= max_step * two.abs() {
-            (two, 2)
+            (two_cells, 2, exact.is_some())
         } else {
-            (gauss(&GAUSS4), 4)
+            (gauss(&GAUSS4).1, 4, exact.is_some())
         }
     }
+}
+
+/// The cells [lo, hi] [px from the pixel centre] of a Gauss rule's points
+/// along one axis: the pixel cut where the weights add up, so each cell's
+/// width is its point's weight and holds the point.
+fn gauss_cells(rule: &[(f64, f64)]) -> [(f64, f64); 4] {
+    let mut cells = [(0.0, 0.0); 4];
+    let mut lo = -0.5;
+    for (c, &(_, w)) in cells.iter_mut().zip(rule) {
+        *c = (lo, lo + w);
+        lo += w;
+    }
+    cells
 }
 
 /// Gauss–Legendre offsets [px] from a pixel centre and weights (summing to

@@ -55,8 +55,15 @@ pub struct RenderSettings {
     pub texture_samples: usize,
     /// How a pixel's or cap's albedo is averaged over its map footprint:
     /// `exact` (the bilinear map's exact mean over the footprint
-    /// parallelogram) or `samples` (k×k samples, `texture_samples`).
+    /// parallelogram), `samples` (k×k samples, `texture_samples`) or
+    /// `adaptive` (the samples, and the exact mean where their spread
+    /// exceeds `map_tolerance`).
     pub map_filter: MapFilter,
+    /// The adaptive filter's threshold: where the k×k samples' range
+    /// (max − min) reaches this fraction of their mean, the footprint
+    /// takes the exact mean. 0: always exact; above k² never (for a
+    /// non-negative map). In [0, 100].
+    pub map_tolerance: f64,
     /// `pixels` (default): pixels whose whole preimage is lit and visible
     /// are integrated per pixel ([`interior`]), the rest by the lune's caps;
     /// `caps`: the lune's caps everywhere.
@@ -83,6 +90,10 @@ pub enum Interior {
     Caps,
 }
 
+/// Default threshold of the adaptive map filter
+/// ([`RenderSettings::map_tolerance`]), from the benchmark's curve.
+pub const DEFAULT_MAP_TOLERANCE: f64 = 0.05;
+
 /// Default caps per pixel along each axis.
 pub const DEFAULT_DENSITY: f64 = 1.0;
 
@@ -95,6 +106,7 @@ impl Default for RenderSettings {
             sub_bands: None,
             texture_samples: 2,
             map_filter: MapFilter::Samples,
+            map_tolerance: DEFAULT_MAP_TOLERANCE,
             interior: Interior::Pixels,
             node_spacing: interior::DEFAULT_NODE_SPACING,
             pixel_tolerance: interior::DEFAULT_PIXEL_TOLERANCE,
@@ -118,6 +130,12 @@ impl RenderSettings {
         }
         if !(1..=4).contains(&self.texture_samples) {
             return Err(Error::invalid("render.texture_samples", "must be in 1..=4"));
+        }
+        if !(self.map_tolerance >= 0.0 && self.map_tolerance <= 100.0) {
+            return Err(Error::invalid(
+                "render.map_tolerance",
+                "must be in [0, 100]",
+            ));
         }
         if !(1..=16).contains(&self.node_spacing) {
             return Err(Error::invalid("render.node_spacing", "must be in 1..=16"));
@@ -153,6 +171,10 @@ pub enum MapFilter {
     /// k×k bilinear samples or box averages (`texture_samples`).
     #[default]
     Samples,
+    /// The k×k samples where their range is below `map_tolerance` of
+    /// their mean, else the exact mean: the samples' spread estimates the
+    /// detail the footprint holds.
+    Adaptive,
 }
 
 /// Geometry of the cap integrals.
@@ -324,6 +346,7 @@ impl Renderer {
             distant,
             texture_samples: settings.texture_samples,
             map_filter: settings.map_filter,
+            map_tolerance: settings.map_tolerance,
             occulter: state.occulter.and_then(|o| {
                 let rel = o.position - state.body_position;
                 let local = DVec3::new(rel.dot(lune.x), rel.dot(lune.y), rel.dot(lune.z));

@@ -611,7 +611,7 @@ impl Scene {
         file.render.check()?;
         // The exact filter's table is built now rather than in the first
         // frame; with the map samples it is never built (16.8 MB for 2k).
-        if file.render.map_filter == crate::render::MapFilter::Exact {
+        if file.render.map_filter != crate::render::MapFilter::Samples {
             if let Some(map) = &body.albedo_map {
                 map.prepare_filters();
             }
