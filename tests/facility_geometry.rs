@@ -657,9 +657,13 @@ fn render_blocks_send_each_block_the_flux_integrated_over_it() {
             worst_edge < 5e-2,
             "block {b}: worst edge block flux error {worst_edge}"
         );
+        // Blocks of 3 grid their caps 3× coarser: against the converged
+        // render (caps only, 16 per pixel) the fine total is −2.4e-5 and
+        // the block-3 total −2.25e-4 (−1.9e-4 when caps were split over
+        // pixels by area rather than along the radiance).
         let total: f64 = block_flux.iter().map(|p| p.1).sum();
         assert!(
-            (total / total_fine - 1.0).abs() < 2e-4,
+            (total / total_fine - 1.0).abs() < 3e-4,
             "block {b}: total {total} vs {total_fine}"
         );
     }
