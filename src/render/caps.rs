@@ -675,11 +675,12 @@ impl Texture {
         )
     }
 
-    /// Grid `pf` over the k×k sub-quadrilaterals of `quad` (corners at
-    /// (t0,s0), (t0,s1), (t1,s1), (t1,s0)) in proportion to the samples
-    /// times the flux the radiance shape (interpolated from the cap's
-    /// corners) gives over each sub-quadrilateral's area, so that a
-    /// constant map splits as no map does.
+    /// Grid `pf` over the pixels `quad` touches: the pixels' shares of the
+    /// whole cap without a map (the plane of its radiance `shape`), each
+    /// scaled by the map's weight in that pixel. The weight is the samples'
+    /// relative value averaged over the k×k sub-quadrilaterals by their
+    /// part of the pixel, so a constant map grids exactly as no map does,
+    /// and the shares stay non-negative.
     #[inline]
     fn grid(&self, sink: &mut Sink, quad: &[(f64, f64); 4], shape: &[f64; 4], pf: f64) {
         // A cap inside one pixel needs no split.
@@ -688,6 +689,61 @@ impl Texture {
             sink.add(x0.floor() as i64, y0.floor() as i64, pf);
             return;
         }
+        let subs = self.sub_quads(quad, shape);
+        let subs = &subs[..self.k * self.k];
+        let share_sum: f64 = subs.iter().map(|s| s.share).sum();
+        let flux_sum: f64 = subs.iter().map(|s| s.flux).sum();
+        if !(share_sum > 0.0 && flux_sum > 0.0) {
+            return;
+        }
+        let mut whole = Shares::default();
+        grid_quad_shaped(&mut whole, quad, shape, 1.0);
+        // Per pixel: the map-weighted and the unweighted sub-quad shares.
+        let (mut mapped, mut plain) = (Shares::default(), Shares::default());
+        for sub in subs {
+            let mut part = Shares::default();
+            grid_quad_shaped(&mut part, &sub.corners, &sub.shape, 1.0);
+            for &(i, j, v) in part.cells() {
+                mapped.add(i, j, v * sub.share / share_sum);
+                plain.add(i, j, v * sub.flux / flux_sum);
+            }
+            if part.overflow {
+                mapped.overflow = true;
+            }
+        }
+        if whole.overflow || mapped.overflow || plain.overflow {
+            // A cap over more than 16 pixels: the sub-quadrilaterals alone.
+            for sub in subs {
+                grid_quad_shaped(sink, &sub.corners, &sub.shape, pf * sub.share / share_sum);
+            }
+            return;
+        }
+        // mapped / plain is a weighted mean of share/flux over the subs in
+        // the pixel, so it is bounded by their extremes; 1 (the cap's mean)
+        // where no sub lands.
+        let weight = |i: i64, j: i64| match (mapped.get(i, j), plain.get(i, j)) {
+            (m, p) if p > 0.0 => m / p,
+            _ => 1.0,
+        };
+        let total: f64 = whole
+            .cells()
+            .iter()
+            .map(|&(i, j, v)| v * weight(i, j))
+            .sum();
+        if !(total > 0.0) {
+            return;
+        }
+        for &(i, j, v) in whole.cells() {
+            sink.add(i, j, pf * v * weight(i, j) / total);
+        }
+    }
+
+    /// The k×k sub-quadrilaterals of `quad` (corners at (t0,s0), (t0,s1),
+    /// (t1,s1), (t1,s0)), their radiance shape interpolated from the
+    /// corners, the flux that shape gives over each one's area, and that
+    /// flux times its sample.
+    #[inline]
+    fn sub_quads(&self, quad: &[(f64, f64); 4], shape: &[f64; 4]) -> [SubQuad; 16] {
         let k = self.k;
         let weights = |v: f64, u: f64| [(1.0 - v) * (1.0 - u), (1.0 - v) * u, v * u, v * (1.0 - u)];
         let at = |v: f64, u: f64| {
@@ -698,28 +754,36 @@ impl Texture {
             ((x, y), h)
         };
         let step = 1.0 / k as f64;
-        let mut subs = [([(0.0, 0.0); 4], [0.0; 4], 0.0); 16];
-        let mut sum = 0.0;
+        let mut subs = [SubQuad::default(); 16];
         for p in 0..k {
             let (v0, v1) = (p as f64 * step, (p + 1) as f64 * step);
             for q in 0..k {
                 let (u0, u1) = (q as f64 * step, (q + 1) as f64 * step);
                 let c = [at(v0, u0), at(v0, u1), at(v1, u1), at(v1, u0)];
-                let h = [c[0].1, c[1].1, c[2].1, c[3].1];
-                let sub = [c[0].0, c[1].0, c[2].0, c[3].0];
-                let flux = quad_area(&sub) * 0.25 * (h[0] + h[1] + h[2] + h[3]);
-                let share = self.values[p * k + q] * flux;
-                subs[p * k + q] = (sub, h, share);
-                sum += share;
+                let shape = [c[0].1, c[1].1, c[2].1, c[3].1];
+                let corners = [c[0].0, c[1].0, c[2].0, c[3].0];
+                let flux = quad_area(&corners) * 0.25 * (shape[0] + shape[1] + shape[2] + shape[3]);
+                subs[p * k + q] = SubQuad {
+                    corners,
+                    shape,
+                    flux,
+                    share: self.values[p * k + q] * flux,
+                };
             }
         }
-        if !(sum > 0.0) {
-            return;
-        }
-        for (sub, h, share) in &subs[..k * k] {
-            grid_quad_shaped(sink, sub, h, pf * share / sum);
-        }
+        subs
     }
+}
+
+/// One of a cap's k×k sub-quadrilaterals in the image.
+#[derive(Clone, Copy, Default)]
+struct SubQuad {
+    corners: [(f64, f64); 4],
+    shape: [f64; 4],
+    /// The radiance shape's integral over it (area × mean shape).
+    flux: f64,
+    /// `flux` times its map sample.
+    share: f64,
 }
 
 /// The range of a footprint's k×k samples: the adaptive filter's cheap
@@ -1125,7 +1189,13 @@ pub struct Sink<'a> {
     pub integrated: u64,
 }
 
-impl Sink<'_> {
+/// Where gridding puts a cap's value: the frame ([`Sink`]) or one cap's
+/// pixel shares ([`Shares`]).
+trait PixelAdd {
+    fn add(&mut self, i: i64, j: i64, value: f64);
+}
+
+impl PixelAdd for Sink<'_> {
     #[inline]
     fn add(&mut self, i: i64, j: i64, value: f64) {
         let roi = &self.roi;
@@ -1138,7 +1208,59 @@ impl Sink<'_> {
             }
         }
     }
+}
 
+/// One cap's value split over the few pixels it touches, before it goes
+/// to the frame; `overflow` when it touched more than 16.
+#[derive(Clone, Copy)]
+struct Shares {
+    cells: [(i64, i64, f64); 16],
+    n: usize,
+    overflow: bool,
+}
+
+impl Default for Shares {
+    fn default() -> Self {
+        Shares {
+            cells: [(0, 0, 0.0); 16],
+            n: 0,
+            overflow: false,
+        }
+    }
+}
+
+impl Shares {
+    fn cells(&self) -> &[(i64, i64, f64)] {
+        &self.cells[..self.n]
+    }
+
+    /// The value held for pixel (i, j), 0 if none.
+    fn get(&self, i: i64, j: i64) -> f64 {
+        self.cells()
+            .iter()
+            .find(|c| c.0 == i && c.1 == j)
+            .map_or(0.0, |c| c.2)
+    }
+}
+
+impl PixelAdd for Shares {
+    #[inline]
+    fn add(&mut self, i: i64, j: i64, value: f64) {
+        if let Some(c) = self.cells[..self.n]
+            .iter_mut()
+            .find(|c| c.0 == i && c.1 == j)
+        {
+            c.2 += value;
+        } else if self.n < self.cells.len() {
+            self.cells[self.n] = (i, j, value);
+            self.n += 1;
+        } else {
+            self.overflow = true;
+        }
+    }
+}
+
+impl Sink<'_> {
     /// Whether every pixel a footprint's bounding box touches is interior,
     /// so the cap can be skipped.
     #[inline]
@@ -1186,7 +1308,12 @@ const SHAPE_FLAT: f64 = 1e-2;
 /// footprint, from the part's area and first moment. Elsewhere the shape
 /// is flat and this is [`grid_quad`].
 #[inline]
-fn grid_quad_shaped(sink: &mut Sink, quad: &[(f64, f64); 4], shape: &[f64; 4], value: f64) {
+fn grid_quad_shaped(
+    sink: &mut impl PixelAdd,
+    quad: &[(f64, f64); 4],
+    shape: &[f64; 4],
+    value: f64,
+) {
     let (x0, y0, x1, y1) = bounds(quad);
     let (i0, i1) = (x0.floor() as i64, x1.floor() as i64);
     let (j0, j1) = (y0.floor() as i64, y1.floor() as i64);
@@ -1270,7 +1397,7 @@ fn plane_slope(quad: &[(f64, f64); 4], shape: &[f64; 4]) -> Option<(f64, f64)> {
 /// corners, that falls in each. Neighbouring caps share corners, so the
 /// footprints tile the image without gaps or overlaps.
 #[inline]
-fn grid_quad(sink: &mut Sink, quad: &[(f64, f64); 4], value: f64) {
+fn grid_quad(sink: &mut impl PixelAdd, quad: &[(f64, f64); 4], value: f64) {
     let (x0, y0, x1, y1) = bounds(quad);
     let (i0, i1) = (x0.floor() as i64, x1.floor() as i64);
     let (j0, j1) = (y0.floor() as i64, y1.floor() as i64);
