@@ -211,18 +211,28 @@ sun_position = [0.0, 1.496e11, 0.0]
 }
 
 const PHASES: [f64; 9] = [2.0, 5.0, 10.0, 20.0, 30.0, 45.0, 60.0, 75.0, 90.0];
-/// Observer (lat, lon) and sub-solar latitude [deg]: none, and the extreme
-/// librations (±6.7° in latitude, ±7.9° in longitude; sub-solar ±1.5°).
-const LIBRATIONS: [(f64, f64, f64); 3] = [(0.0, 0.0, 0.0), (6.5, -7.5, 1.5), (-6.5, 7.5, -1.5)];
+/// Observer (lat, lon) and sub-solar latitude [deg]: none, then the range
+/// of the librations (±6.7° in latitude, ±7.9° in longitude; sub-solar
+/// ±1.5°): its four corners and the middles of its four edges.
+const LIBRATIONS: [(f64, f64, f64); 9] = [
+    (0.0, 0.0, 0.0),
+    (6.5, -7.5, 1.5),
+    (-6.5, 7.5, -1.5),
+    (6.5, 7.5, 1.5),
+    (-6.5, -7.5, -1.5),
+    (6.5, 0.0, 1.5),
+    (-6.5, 0.0, -1.5),
+    (0.0, 7.5, 0.0),
+    (0.0, -7.5, 0.0),
+];
 
-/// The tolerance, 2 %, without libration. At the extreme
-/// librations (observer at (±6.5°, ∓7.5°)) the fitted model misses it at
-/// 60–90° phase, by up to 2.75 % (1020 nm, 75°, waning; docs/MOON.md):
-/// 3 % there, a known miss of the 2 % target (a power on the map, tried
-/// as a second map parameter, does not close it). Every point over 2 %
-/// is printed.
-fn tolerance(lat: f64) -> f64 {
-    if lat == 0.0 {
+/// The tolerance, 2 %, without libration. Over the range of the
+/// librations the fitted model misses it at 45–90° phase, by up to 2.8 %
+/// (docs/MOON.md, "The libration miss"): 3 % there, a known miss of the
+/// 2 % target (a power on the map and a smooth large-scale correction of
+/// it, tried, do not close it). Every point over 2 % is printed.
+fn tolerance(lat: f64, lon: f64) -> f64 {
+    if lat == 0.0 && lon == 0.0 {
         0.02
     } else {
         0.03
@@ -252,7 +262,7 @@ fn disk_reflectance_matches_lime_at_its_bands() {
                     if err.abs() > 0.02 {
                         eprintln!("over 2 %: {case}");
                     }
-                    if err.abs() > tolerance(lat) {
+                    if err.abs() > tolerance(lat, lon) {
                         failures.push(case.clone());
                     }
                     if err.abs() > worst.0 {
