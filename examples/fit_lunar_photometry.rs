@@ -22,6 +22,12 @@
 //! `cargo run --release --example fit_lunar_photometry -- --scan-power 0.7,1,1.4 --band 1020`
 //! instead fits one band at each fixed map power and prints the worst
 //! residuals with and without libration (no body file).
+//!
+//! `cargo run --release --example fit_lunar_photometry -- --scan-large-scale --band 675,870,1020`
+//! fits those bands with a smooth large-scale factor on the map (or, with
+//! `--degree 0 --free-theta`, a free θ̄) on all four libration corners
+//! and prints the worst residuals, fitted and at the range's edge middles
+//! (no body file).
 
 use std::f64::consts::PI;
 use std::path::Path;
@@ -151,6 +157,7 @@ struct Params {
     h_s: f64,
     b_c0: f64,
     h_c: f64,
+    theta_bar_deg: f64,
 }
 
 impl Params {
@@ -175,6 +182,7 @@ impl Params {
             h_s: x[4].exp(),
             b_c0: cboe.0,
             h_c: cboe.1,
+            theta_bar_deg: THETA_BAR_DEG,
         }
     }
 
@@ -183,7 +191,7 @@ impl Params {
             w: HapkeAlbedo::Constant(0.5),
             b: HapkeAlbedo::Constant(self.b),
             c: HapkeAlbedo::Constant(self.c),
-            theta_bar: THETA_BAR_DEG.to_radians(),
+            theta_bar: self.theta_bar_deg.to_radians(),
             h_s: HapkeAlbedo::Constant(self.h_s),
             b_s0: HapkeAlbedo::Constant(self.b_s0),
             h_c: Some(self.h_c),
@@ -201,6 +209,8 @@ impl Params {
 struct MapLaw {
     m_lo: f64,
     power: f64,
+    /// The smooth factor's coefficients (`albedo_map.large_scale`).
+    large_scale: [f64; 8],
 }
 
 struct Fitter {
@@ -214,6 +224,9 @@ impl Fitter {
     fn body(&self, map_law: MapLaw, model: Reflectance) -> Body {
         let mut map = self.linear_map.clone();
         map.stretch_power(map_law.m_lo, 1.0, map_law.power);
+        if map_law.large_scale != [0.0; 8] {
+            map.modulate_large_scale(&map_law.large_scale);
+        }
         Body {
             radius: MOON_RADIUS,
             reflectance: model,
@@ -241,7 +254,18 @@ impl Fitter {
     }
 
     fn residuals(&mut self, body: &Body, p: &Params, k: usize) -> Vec<f64> {
-        geometries()
+        self.residuals_over(body, p, k, &LIBRATIONS)
+    }
+
+    /// ln(render/LIME) without libration, then at each of `librations`.
+    fn residuals_over(
+        &mut self,
+        body: &Body,
+        p: &Params,
+        k: usize,
+        librations: &[(f64, f64, f64)],
+    ) -> Vec<f64> {
+        geometries(librations)
             .map(|g| {
                 let (_, sun_lon) = g.state();
                 let (lat, lon, _) = g.libration;
@@ -256,16 +280,25 @@ impl Fitter {
 const START_MAP: MapLaw = MapLaw {
     m_lo: 0.2,
     power: 1.0,
+    large_scale: [0.0; 8],
 };
 
 /// Extreme librations: observer (lat, lon) and sub-solar latitude [deg].
+/// The fit's: two opposite corners of the range (the shipped body's fit).
 const LIBRATIONS: [(f64, f64, f64); 2] = [(6.5, -7.5, 1.5), (-6.5, 7.5, -1.5)];
+/// All four corners (the large-scale scan's objective).
+const CORNERS: [(f64, f64, f64); 4] = [
+    (6.5, -7.5, 1.5),
+    (-6.5, 7.5, -1.5),
+    (6.5, 7.5, 1.5),
+    (-6.5, -7.5, -1.5),
+];
 /// Phases [deg] at which the librations enter the fit.
 const LIBRATION_PHASES: [f64; 6] = [10.0, 30.0, 45.0, 60.0, 75.0, 90.0];
 
 /// The fit's observations: every phase without libration first (the
 /// residual table prints these), then the librations at fewer phases.
-fn geometries() -> impl Iterator<Item = Geometry> {
+fn geometries(librations: &[(f64, f64, f64)]) -> impl Iterator<Item = Geometry> + '_ {
     let plain = PHASES.iter().flat_map(|&phase_deg| {
         [true, false].map(|waxing| Geometry {
             phase_deg,
@@ -273,7 +306,7 @@ fn geometries() -> impl Iterator<Item = Geometry> {
             libration: (0.0, 0.0, 0.0),
         })
     });
-    let librated = LIBRATIONS.iter().flat_map(|&libration| {
+    let librated = librations.iter().flat_map(|&libration| {
         LIBRATION_PHASES.iter().flat_map(move |&phase_deg| {
             [true, false].map(|waxing| Geometry {
                 phase_deg,
@@ -410,6 +443,7 @@ fn scan_powers(fit: &mut Fitter, scan: &ScanRequest, model: Reflectance) {
         h_s,
         b_c0,
         h_c,
+        theta_bar_deg: THETA_BAR_DEG,
     };
     let n = 2 * PHASES.len();
     let per_libration = 2 * LIBRATION_PHASES.len();
@@ -418,14 +452,16 @@ fn scan_powers(fit: &mut Fitter, scan: &ScanRequest, model: Reflectance) {
             .map(|e| 100.0 * e.exp_m1())
             .fold(0.0f64, |a, b| if b.abs() > a.abs() { b } else { a })
     };
-    println!(
-        "band_nm power m_lo worst_plain_% worst_{:?}_% worst_{:?}_%",
-        LIBRATIONS[0], LIBRATIONS[1]
-    );
+    let header: Vec<String> = LIBRATIONS
+        .iter()
+        .map(|l| format!("worst_{l:?}_%"))
+        .collect();
+    println!("band_nm power m_lo worst_plain_% {}", header.join(" "));
     for &power in &scan.powers {
         let law = |x: &[f64]| MapLaw {
             m_lo: x[5].exp().min(1.0),
             power,
+            large_scale: [0.0; 8],
         };
         let mut x0 = p0.to_x();
         x0.push(0.21f64.ln());
@@ -435,16 +471,158 @@ fn scan_powers(fit: &mut Fitter, scan: &ScanRequest, model: Reflectance) {
         });
         let body = fit.body(law(&x), model.clone());
         let r = fit.residuals(&body, &Params::from_x(&x[..5], SHIPPED_CBOE), k);
+        let librated: Vec<String> = r[n..]
+            .chunks(per_libration)
+            .map(|c| format!("{:+13.2}", worst(c)))
+            .collect();
         println!(
-            "{:7.0} {power:5.2} {:.4} {:+13.2} {:+13.2} {:+13.2}",
+            "{:7.0} {power:5.2} {:.4} {:+13.2} {}",
             BANDS[k],
             law(&x).m_lo,
             worst(&r[..n]),
-            worst(&r[n..n + per_libration]),
-            worst(&r[n + per_libration..])
+            librated.join(" ")
         );
     }
 }
+
+/// `--scan-large-scale --band 870,1020 [--degree 0|1|2] [--spread S]
+/// [--free-theta]`: fit the listed bands' five parameters each together
+/// with the coefficients of a smooth large-scale factor on the map
+/// (`albedo_map.large_scale`, degree 1: three, degree 2: eight, shared by
+/// the bands, each with a prior of size S) and, with `--free-theta`, the
+/// macroscopic roughness θ̄ (shared); m_lo, γ and the CBOE held at the
+/// shipped values. The objective has all four corners of the libration
+/// range; prints the worst residuals before and after, and at the middles
+/// of the range's edges (not fitted); no body file. How the large-scale
+/// correction and a free θ̄ were judged (docs/MOON.md).
+struct LargeScaleScan {
+    bands: Vec<usize>,
+    spread: f64,
+    degree: usize,
+    free_theta: bool,
+}
+
+impl LargeScaleScan {
+    /// The joint vector: five per band, the used coefficients, ln θ̄.
+    fn split(&self, x: &[f64]) -> (Vec<Params>, MapLaw) {
+        let m = 5 * self.bands.len();
+        let used = [0, 3, 8][self.degree];
+        let theta = if self.free_theta {
+            x[m + used].exp()
+        } else {
+            THETA_BAR_DEG
+        };
+        let params = (0..self.bands.len())
+            .map(|i| Params {
+                theta_bar_deg: theta,
+                ..Params::from_x(&x[5 * i..5 * i + 5], SHIPPED_CBOE)
+            })
+            .collect();
+        let mut large_scale = [0.0; 8];
+        large_scale[..used].copy_from_slice(&x[m..m + used]);
+        let law = MapLaw {
+            m_lo: SHIPPED_M_LO,
+            power: 1.0,
+            large_scale,
+        };
+        (params, law)
+    }
+
+    fn start(&self) -> Vec<f64> {
+        let mut x0 = Vec::new();
+        for &k in &self.bands {
+            let [w_scale, b, c, b_s0, h_s] = SHIPPED[k];
+            let (b_c0, h_c) = SHIPPED_CBOE;
+            let p = Params {
+                w_scale,
+                b,
+                c,
+                b_s0,
+                h_s,
+                b_c0,
+                h_c,
+                theta_bar_deg: THETA_BAR_DEG,
+            };
+            x0.extend(p.to_x());
+        }
+        x0.extend(vec![0.0; [0, 3, 8][self.degree]]);
+        if self.free_theta {
+            x0.push(THETA_BAR_DEG.ln());
+        }
+        x0
+    }
+
+    /// ln(render/LIME) per band, without libration then at `librations`.
+    fn residuals(
+        &self,
+        fit: &mut Fitter,
+        x: &[f64],
+        librations: &[(f64, f64, f64)],
+    ) -> Vec<Vec<f64>> {
+        let (params, law) = self.split(x);
+        let body = fit.body(law, params[0].model());
+        self.bands
+            .iter()
+            .zip(&params)
+            .map(|(&k, p)| fit.residuals_over(&body, p, k, librations))
+            .collect()
+    }
+
+    fn report(&self, fit: &mut Fitter, label: &str, x: &[f64]) {
+        let n = 2 * PHASES.len();
+        let per_libration = 2 * LIBRATION_PHASES.len();
+        let worst = |r: &[f64]| {
+            r.iter()
+                .map(|e| 100.0 * e.exp_m1())
+                .fold(0.0f64, |a, b| if b.abs() > a.abs() { b } else { a })
+        };
+        for (set, librations) in [("fitted", &CORNERS[..]), ("hold-out", &HOLDOUT[..])] {
+            let rs = self.residuals(fit, x, librations);
+            for (&k, r) in self.bands.iter().zip(&rs) {
+                let mut line = format!(
+                    "{label} {set:8} {:5.0} nm  plain {:+6.2} %",
+                    BANDS[k],
+                    worst(&r[..n])
+                );
+                for (l, chunk) in librations.iter().zip(r[n..].chunks(per_libration)) {
+                    line += &format!("  {l:?} {:+6.2} %", worst(chunk));
+                }
+                println!("{line}");
+            }
+        }
+        let (params, law) = self.split(x);
+        println!(
+            "{label} large_scale = {:?}, theta_bar = {:.3} deg",
+            law.large_scale, params[0].theta_bar_deg
+        );
+    }
+
+    fn run(&self, fit: &mut Fitter) {
+        let x0 = self.start();
+        self.report(fit, "before", &x0);
+        let m = 5 * self.bands.len();
+        let used = [0, 3, 8][self.degree];
+        // A prior on the coefficients: one of size `spread` costs as much
+        // as a residual of 0.5 %.
+        let x = levenberg_marquardt(x0, 15, |x| {
+            let mut r = penalised(self.residuals(fit, x, &CORNERS).concat());
+            r.extend(x[m..m + used].iter().map(|a| 0.005 * a / self.spread));
+            r
+        });
+        self.report(fit, "after", &x);
+    }
+}
+
+/// Librations not in the fit: the middles of the range's edges.
+const HOLDOUT: [(f64, f64, f64); 4] = [
+    (6.5, 0.0, 1.5),
+    (-6.5, 0.0, -1.5),
+    (0.0, 7.5, 0.0),
+    (0.0, -7.5, 0.0),
+];
+
+/// The shipped map law's m_lo.
+const SHIPPED_M_LO: f64 = 0.209997;
 
 /// Gaussian elimination with partial pivoting on an augmented matrix.
 #[allow(clippy::needless_range_loop)]
@@ -526,8 +704,47 @@ fn main() -> anyhow::Result<()> {
         h_s: 0.15,
         b_c0: 0.95,
         h_c: 0.009,
+        theta_bar_deg: THETA_BAR_DEG,
     };
 
+    let args: Vec<String> = std::env::args().collect();
+    if args.iter().any(|a| a == "--scan-large-scale") {
+        let list = args
+            .iter()
+            .position(|a| a == "--band")
+            .and_then(|i| args.get(i + 1))
+            .map_or("1020", |s| s.as_str());
+        let bands = list
+            .split(',')
+            .map(|v| {
+                let nm: f64 = v.trim().parse()?;
+                BANDS
+                    .iter()
+                    .position(|&b| b == nm)
+                    .ok_or_else(|| anyhow::anyhow!("--band: {nm} is not a LIME band {BANDS:?}"))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let value = |flag: &str, default: f64| -> anyhow::Result<f64> {
+            match args
+                .iter()
+                .position(|a| a == flag)
+                .and_then(|i| args.get(i + 1))
+            {
+                Some(v) => Ok(v.parse()?),
+                None => Ok(default),
+            }
+        };
+        let degree = value("--degree", 2.0)?;
+        anyhow::ensure!([0.0, 1.0, 2.0].contains(&degree), "--degree: 0, 1 or 2");
+        let scan = LargeScaleScan {
+            bands,
+            spread: value("--spread", 0.1)?,
+            degree: degree as usize,
+            free_theta: args.iter().any(|a| a == "--free-theta"),
+        };
+        scan.run(&mut fit);
+        return Ok(());
+    }
     if let Some(scan) = ScanRequest::from_args()? {
         scan_powers(&mut fit, &scan, start.model());
         return Ok(());
@@ -547,6 +764,7 @@ fn main() -> anyhow::Result<()> {
         let map_law = MapLaw {
             m_lo: x[7].exp().min(1.0),
             power: x[8].exp().clamp(0.1, 10.0),
+            large_scale: [0.0; 8],
         };
         ((b_c0, x[6].exp()), map_law)
     };
@@ -589,7 +807,7 @@ fn main() -> anyhow::Result<()> {
 /// The body file: w(λ) at 10 nm steps following the composite spectrum
 /// between the fitted band scales; the phase parameters at the six bands.
 fn print_body_file(map_law: MapLaw, fitted: &[Params], spectrum: &[(f64, f64)]) {
-    let MapLaw { m_lo, power } = map_law;
+    let MapLaw { m_lo, power, .. } = map_law;
     let ratio: Vec<(f64, f64)> = BANDS
         .iter()
         .zip(fitted)

@@ -103,6 +103,9 @@ fn spectral_body_keys_name_their_errors() {
         ("map power negative", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("-1.5"))), "body.albedo_map.power"),
         ("map power NaN", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("nan"))), "body.albedo_map.power"),
         ("map power 1e9", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("1e9"))), "body.albedo_map.power"),
+        ("large_scale too large", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("1.0, large_scale = [0, 0, 0, 0, 0, 0, 0, 2.5]"))), "body.albedo_map.large_scale"),
+        ("large_scale NaN", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("1.0, large_scale = [0, 0, nan, 0, 0, 0, 0, 0]"))), "body.albedo_map.large_scale"),
+        ("large_scale too short", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("1.0, large_scale = [0, 0, 0]"))), "large_scale"),
         ("map power a string", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("\"2\""))), "power"),
         ("albedo spectrum negative", good.replace("reflectance = { model", "albedo_spectrum = [[400.0, -1.0], [500.0, 1.0]]\nreflectance = { model"), "body.albedo_spectrum"),
         ("albedo spectrum one row", good.replace("reflectance = { model", "albedo_spectrum = [[400.0, 1.0]]\nreflectance = { model"), "body.albedo_spectrum"),
@@ -231,6 +234,45 @@ mod map_power {
                     let e = e.to_string();
                     prop_assert!(e.contains("prop.toml"), "{}", e);
                     prop_assert!(e.contains("body.albedo_map"), "{}", e);
+                }
+            }
+        }
+    }
+}
+
+mod map_large_scale {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Any `albedo_map.large_scale`: Ok with every map value finite
+        /// and positive, or an error naming the key.
+        #[test]
+        fn any_coefficients_are_ok_or_a_named_error(
+            c in proptest::collection::vec(prop_oneof![-5.0f64..5.0, Just(f64::NAN), Just(f64::INFINITY), Just(2.0), Just(-2.0)], 8),
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            let pixels: Vec<u8> = vec![0, 1, 37, 128, 200, 255, 255, 3];
+            image::GrayImage::from_raw(4, 2, pixels).unwrap().save(dir.path().join("m.png")).unwrap();
+            let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 100.0).toml();
+            let list: Vec<String> = c.iter().map(|v| if v.is_nan() { "nan".into() } else if v.is_infinite() { "inf".into() } else { format!("{v:e}") }).collect();
+            let text = good.replace(
+                "reflectance = { model",
+                &format!("albedo_map = {{ path = \"m.png\", min = 0.1, max = 0.4, large_scale = [{}] }}\nreflectance = {{ model", list.join(", ")),
+            );
+            match Scene::from_toml(&text, &dir.path().join("prop.toml")) {
+                Ok(scene) => {
+                    prop_assert!(c.iter().all(|v| v.abs() <= 2.0));
+                    let map = scene.body.albedo_map.unwrap();
+                    for v in &map.data {
+                        prop_assert!(v.is_finite() && *v > 0.0, "{}", v);
+                    }
+                }
+                Err(e) => {
+                    let e = e.to_string();
+                    prop_assert!(e.contains("prop.toml"), "{}", e);
+                    prop_assert!(e.contains("body.albedo_map.large_scale"), "{}", e);
                 }
             }
         }

@@ -186,6 +186,22 @@ pub fn lat_lon(n: DVec3) -> (f64, f64) {
     (lat, lon)
 }
 
+/// exp(p(n)) of [`EquirectMap::modulate_large_scale`] at (lat, lon).
+pub fn large_scale_factor(c: &[f64; 8], lat: f64, lon: f64) -> f64 {
+    let (sl, cl) = lat.sin_cos();
+    let (so, co) = lon.sin_cos();
+    let (x, y, z) = (cl * co, cl * so, sl);
+    let p = c[0] * z
+        + c[1] * x
+        + c[2] * y
+        + c[3] * 0.5 * (3.0 * z * z - 1.0)
+        + c[4] * x * z
+        + c[5] * y * z
+        + c[6] * 0.5 * (x * x - y * y)
+        + c[7] * x * y;
+    p.exp()
+}
+
 impl EquirectMap {
     /// Map from row-major values.
     pub fn new(width: usize, height: usize, data: Vec<f32>) -> Self {
@@ -309,6 +325,26 @@ impl EquirectMap {
             // linear stretch.
             let bent = if power == 1.0 { t } else { t.powf(power) };
             *v = (lo + bent * (hi - lo)) as f32;
+        }
+    }
+
+    /// Multiply every texel by exp(p(n)), p a polynomial of degree ≤ 2 in
+    /// the body-fixed unit direction n = (x, y, z) of the texel centre (x
+    /// toward longitude 0, z north) without a constant term:
+    /// `coefficients` multiply z, x, y, (3z² − 1)/2, xz, yz, (x² − y²)/2,
+    /// xy (the real spherical harmonics of degree 1 and 2, unnormalised).
+    /// A smooth large-scale correction of a mosaic's brightness (e.g. its
+    /// photometric normalisation toward the limbs and poles), applied once
+    /// at load.
+    pub fn modulate_large_scale(&mut self, coefficients: &[f64; 8]) {
+        self.forget_derived();
+        let (width, height) = (self.width, self.height);
+        for (row, values) in self.data.chunks_mut(width).enumerate() {
+            let lat = FRAC_PI_2 - (row as f64 + 0.5) / height as f64 * PI;
+            for (col, v) in values.iter_mut().enumerate() {
+                let lon = (col as f64 + 0.5) / width as f64 * TAU - PI;
+                *v = (*v as f64 * large_scale_factor(coefficients, lat, lon)) as f32;
+            }
         }
     }
 
@@ -819,6 +855,42 @@ mod tests {
                 "{a} {}",
                 m.sample(lat, lon)
             );
+        }
+    }
+
+    #[test]
+    fn large_scale_factor_is_the_harmonics_at_known_directions() {
+        let c = [0.1, -0.2, 0.3, 0.05, -0.07, 0.11, 0.13, -0.17];
+        let r = std::f64::consts::FRAC_1_SQRT_2;
+        // (lat, lon, p) with p written out from the basis at x, y, z.
+        let cases = [
+            (90.0, 0.0, c[0] + c[3]),
+            (-90.0, 0.0, -c[0] + c[3]),
+            (0.0, 0.0, c[1] - 0.5 * c[3] + 0.5 * c[6]),
+            (0.0, 90.0, c[2] - 0.5 * c[3] - 0.5 * c[6]),
+            (0.0, 180.0, -c[1] - 0.5 * c[3] + 0.5 * c[6]),
+            (
+                45.0,
+                0.0,
+                r * (c[0] + c[1]) + 0.25 * c[3] + 0.5 * c[4] + 0.25 * c[6],
+            ),
+            (0.0, 45.0, r * (c[1] + c[2]) - 0.5 * c[3] + 0.5 * c[7]),
+        ];
+        for (lat, lon, p) in cases {
+            let f = large_scale_factor(&c, f64::to_radians(lat), f64::to_radians(lon));
+            assert!(
+                (f - f64::exp(p)).abs() < 1e-12,
+                "({lat}, {lon}): {f} vs {}",
+                p.exp()
+            );
+        }
+        // On a map: each texel times the factor at its centre.
+        let mut m = EquirectMap::new(8, 4, vec![0.5; 32]);
+        m.modulate_large_scale(&c);
+        for (k, &v) in m.data.iter().enumerate() {
+            let (lat, lon) = m.lat_lon_of((k % 8) as f64, (k / 8) as f64);
+            let want = 0.5 * large_scale_factor(&c, lat, lon);
+            assert!((v as f64 - want).abs() < 1e-6 * want, "texel {k}");
         }
     }
 

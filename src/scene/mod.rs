@@ -315,6 +315,9 @@ struct AlbedoMapFile {
     power: f64,
     #[serde(default)]
     encoding: MapEncoding,
+    /// Coefficients of a smooth factor exp(p(n)) applied after the
+    /// stretch ([`EquirectMap::modulate_large_scale`]).
+    large_scale: Option<[f64; 8]>,
 }
 
 fn unit_power() -> f64 {
@@ -324,6 +327,11 @@ fn unit_power() -> f64 {
 /// Range of `albedo_map.power`: wide enough for any contrast law, narrow
 /// enough that t^power stays representable in f32 for every map value.
 const MAP_POWER_RANGE: (f64, f64) = (0.1, 10.0);
+
+/// Largest |coefficient| of `albedo_map.large_scale`: the factor stays
+/// within e^±10 (|p(n)| ≤ 5 × the largest coefficient), so the map stays
+/// finite and positive in f32.
+const LARGE_SCALE_MAX: f64 = 2.0;
 
 /// How an albedo map's 8/16-bit values encode light.
 #[derive(Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -656,6 +664,18 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
                 }
             };
             map.stretch_power(lo, hi, m.power);
+            if let Some(c) = &m.large_scale {
+                if let Some(k) = c.iter().position(|v| !(v.abs() <= LARGE_SCALE_MAX)) {
+                    return Err(Error::invalid(
+                        "body.albedo_map.large_scale",
+                        format!(
+                            "need |coefficient| <= {LARGE_SCALE_MAX}, got {} at {k}",
+                            c[k]
+                        ),
+                    ));
+                }
+                map.modulate_large_scale(c);
+            }
             Some(map)
         }
         None => None,
