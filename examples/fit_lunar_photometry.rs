@@ -431,11 +431,11 @@ const SHIPPED: [[f64; 5]; 6] = [
 ];
 const SHIPPED_CBOE: (f64, f64) = (0.999982, 0.009276);
 
-fn scan_powers(fit: &mut Fitter, scan: &ScanRequest, model: Reflectance) {
-    let k = scan.band;
+/// The shipped fit's parameters at band k.
+fn shipped(k: usize) -> Params {
     let [w_scale, b, c, b_s0, h_s] = SHIPPED[k];
     let (b_c0, h_c) = SHIPPED_CBOE;
-    let p0 = Params {
+    Params {
         w_scale,
         b,
         c,
@@ -444,14 +444,21 @@ fn scan_powers(fit: &mut Fitter, scan: &ScanRequest, model: Reflectance) {
         b_c0,
         h_c,
         theta_bar_deg: THETA_BAR_DEG,
-    };
+    }
+}
+
+/// The residual of largest magnitude among ln-ratios `r`, as render/LIME − 1 in %.
+fn worst(r: &[f64]) -> f64 {
+    r.iter()
+        .map(|e| 100.0 * e.exp_m1())
+        .fold(0.0f64, |a, b| if b.abs() > a.abs() { b } else { a })
+}
+
+fn scan_powers(fit: &mut Fitter, scan: &ScanRequest, model: Reflectance) {
+    let k = scan.band;
+    let p0 = shipped(k);
     let n = 2 * PHASES.len();
     let per_libration = 2 * LIBRATION_PHASES.len();
-    let worst = |r: &[f64]| {
-        r.iter()
-            .map(|e| 100.0 * e.exp_m1())
-            .fold(0.0f64, |a, b| if b.abs() > a.abs() { b } else { a })
-    };
     let header: Vec<String> = LIBRATIONS
         .iter()
         .map(|l| format!("worst_{l:?}_%"))
@@ -531,19 +538,7 @@ impl LargeScaleScan {
     fn start(&self) -> Vec<f64> {
         let mut x0 = Vec::new();
         for &k in &self.bands {
-            let [w_scale, b, c, b_s0, h_s] = SHIPPED[k];
-            let (b_c0, h_c) = SHIPPED_CBOE;
-            let p = Params {
-                w_scale,
-                b,
-                c,
-                b_s0,
-                h_s,
-                b_c0,
-                h_c,
-                theta_bar_deg: THETA_BAR_DEG,
-            };
-            x0.extend(p.to_x());
+            x0.extend(shipped(k).to_x());
         }
         x0.extend(vec![0.0; [0, 3, 8][self.degree]]);
         if self.free_theta {
@@ -571,11 +566,6 @@ impl LargeScaleScan {
     fn report(&self, fit: &mut Fitter, label: &str, x: &[f64]) {
         let n = 2 * PHASES.len();
         let per_libration = 2 * LIBRATION_PHASES.len();
-        let worst = |r: &[f64]| {
-            r.iter()
-                .map(|e| 100.0 * e.exp_m1())
-                .fold(0.0f64, |a, b| if b.abs() > a.abs() { b } else { a })
-        };
         for (set, librations) in [("fitted", &CORNERS[..]), ("hold-out", &HOLDOUT[..])] {
             let rs = self.residuals(fit, x, librations);
             for (&k, r) in self.bands.iter().zip(&rs) {
