@@ -328,9 +328,9 @@ fn unit_power() -> f64 {
 /// enough that t^power stays representable in f32 for every map value.
 const MAP_POWER_RANGE: (f64, f64) = (0.1, 10.0);
 
-/// Largest |coefficient| of `albedo_map.large_scale`: the factor stays
-/// within e^±10 (|p(n)| ≤ 5 × the largest coefficient), so the map stays
-/// finite and positive in f32.
+/// Largest |coefficient| of `albedo_map.large_scale`: the basis functions
+/// are bounded by 1 (four) and ½ (four), so |p(n)| ≤ 6 × 2 and the factor
+/// stays within e^±12, finite and positive in f32.
 const LARGE_SCALE_MAX: f64 = 2.0;
 
 /// How an albedo map's 8/16-bit values encode light.
