@@ -95,6 +95,12 @@ fn commands_acks_unplug_and_reconnect_over_a_pty() {
         port.wait_ack(Duration::from_secs(3)).unwrap().as_deref(),
         Some("ACK 3")
     );
+    // The writer thread counts a line after its write returns, which may be
+    // after the master has read it: give the count a moment on a busy machine.
+    let t0 = Instant::now();
+    while port.stats().written < 2 && t0.elapsed() < Duration::from_secs(2) {
+        std::thread::sleep(Duration::from_millis(5));
+    }
     let st = port.stats();
     assert_eq!(st.written, 2, "{st:?}");
     assert_eq!(st.acks, 2, "{st:?}");

@@ -43,7 +43,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::error::{Error, Result};
+use crate::error::{toml_message, Error, Result};
 use crate::instruments::config::{CameraConfig, SpotMeterConfig};
 
 /// Largest number of levels (a 10-bit display has 1024).
@@ -260,9 +260,9 @@ impl CalibrateConfig {
     pub fn parse(text: &str, path: impl AsRef<Path>, bits: u32) -> Result<CalibrateConfig> {
         let path = path.as_ref();
         let table = calibrate_table(text, path)?;
-        let cfg: CalibrateConfig = table
-            .try_into()
-            .map_err(|e: toml::de::Error| Error::parse(path, format!("[calibrate]: {e}")))?;
+        let cfg: CalibrateConfig = table.try_into().map_err(|e: toml::de::Error| {
+            Error::parse(path, format!("[calibrate]: {}", toml_message(text, &e)))
+        })?;
         cfg.validate(bits)
             .map_err(|e| Error::parse(path, e.to_string()))?;
         Ok(cfg)
@@ -380,7 +380,8 @@ pub fn top_level(bits: u32) -> Result<u32> {
 
 /// The `[calibrate]` table of a facility file's text.
 pub fn calibrate_table(text: &str, path: &Path) -> Result<toml::Value> {
-    let doc: toml::Value = toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+    let doc: toml::Value =
+        toml::from_str(text).map_err(|e| Error::parse(path, toml_message(text, &e)))?;
     doc.get("calibrate").cloned().ok_or_else(|| {
         Error::parse(
             path,

@@ -404,7 +404,11 @@ fn run_geometric(cfg: &CalibrateConfig, facility: &Path, rig: &mut Rig) -> Resul
         "calibrate.geometric: missing; the geometric routine needs its table (docs/GEOMETRIC.md)",
     )?;
     let mut g: geometric::GeometricConfig = table.try_into().map_err(|e: toml::de::Error| {
-        anyhow::anyhow!("{}: [calibrate.geometric]: {e}", facility.display())
+        anyhow::anyhow!(
+            "{}: [calibrate.geometric]: {}",
+            facility.display(),
+            optistim::error::toml_message("", &e)
+        )
     })?;
     g.resolve_paths(facility.parent().unwrap_or(Path::new(".")));
     let report = geometric::calibrate_geometric(

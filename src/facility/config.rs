@@ -60,7 +60,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::error::{Error, Result};
+use crate::error::{toml_message, Error, Result};
 
 use super::display::MonitorSelect;
 use super::dither::DitherKind;
@@ -399,7 +399,7 @@ impl FacilityConfig {
     pub fn parse(text: &str, path: impl AsRef<Path>) -> Result<FacilityConfig> {
         let path = path.as_ref();
         let cfg: FacilityConfig =
-            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+            toml::from_str(text).map_err(|e| Error::parse(path, toml_message(text, &e)))?;
         cfg.validate()
             .map_err(|e| Error::parse(path, e.to_string()))?;
         Ok(cfg)

@@ -25,7 +25,7 @@ use std::path::Path;
 use glam::DVec3;
 use serde::Deserialize;
 
-use crate::error::{Error, Result};
+use crate::error::{toml_message, Error, Result};
 
 /// Largest |coefficient| accepted in `distortion`.
 pub const MAX_DISTORTION: f64 = 1e3;
@@ -77,7 +77,7 @@ impl CameraIntrinsics {
         let f: IntrinsicsFile = if json {
             serde_json::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?
         } else {
-            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?
+            toml::from_str(text).map_err(|e| Error::parse(path, toml_message(text, &e)))?
         };
         let k = Self::from_file(f).map_err(|e| Error::parse(path, e.to_string()))?;
         k.validate()

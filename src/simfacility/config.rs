@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::error::{Error, Result};
+use crate::error::{toml_message, Error, Result};
 
 /// Largest screen or camera side, pixels: keeps every buffer bounded.
 pub const MAX_SIDE: usize = 16_384;
@@ -459,22 +459,6 @@ impl MeterTruth {
     }
 }
 
-/// One-line message of a TOML error: its line and what is wrong.
-fn toml_error(text: &str, e: &toml::de::Error) -> String {
-    let line = e.span().map(|s| {
-        text.as_bytes()[..s.start.min(text.len())]
-            .iter()
-            .filter(|&&b| b == b'\n')
-            .count()
-            + 1
-    });
-    let msg = e.message().replace('\n', " ");
-    match line {
-        Some(l) => format!("line {l}: {msg}"),
-        None => msg,
-    }
-}
-
 impl SimFacilityConfig {
     /// Reads, checks and resolves relative paths against the file's folder.
     pub fn load(path: impl AsRef<Path>) -> Result<SimFacilityConfig> {
@@ -490,7 +474,7 @@ impl SimFacilityConfig {
     pub fn parse(text: &str, path: impl AsRef<Path>) -> Result<SimFacilityConfig> {
         let path = path.as_ref();
         let cfg: SimFacilityConfig =
-            toml::from_str(text).map_err(|e| Error::parse(path, toml_error(text, &e)))?;
+            toml::from_str(text).map_err(|e| Error::parse(path, toml_message(text, &e)))?;
         cfg.validate()
             .map_err(|e| Error::parse(path, e.to_string()))?;
         Ok(cfg)
