@@ -25,15 +25,18 @@
 //!
 //! `cargo run --release --example fit_lunar_photometry -- --scan-large-scale --band 675,870,1020`
 //! fits those bands with a smooth large-scale factor on the map (or, with
-//! `--degree 0 --free-theta`, a free θ̄) on all four libration corners
-//! and prints the worst residuals, fitted and at the range's edge middles
-//! (no body file).
+//! `--degree 0 --free-theta`, a free θ̄; with `--degree 0 --map-phase` and
+//! one band, maps of b and c tied to the mosaic) on all four libration
+//! corners and prints the worst residuals, fitted and at the range's edge
+//! middles (no body file).
 
 use std::f64::consts::PI;
 use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
-use optistim::radiometry::reflectance::{HapkeAlbedo, Reflectance, ReflectanceConfig};
+use optistim::radiometry::reflectance::{
+    HapkeAlbedo, MappedParameter, Reflectance, ReflectanceConfig,
+};
 use optistim::radiometry::spectrum::AU;
 use optistim::render::{BandModel, RenderSettings, Renderer};
 use optistim::scene::{Body, EquirectMap, Pinhole, Relief, State};
@@ -233,6 +236,7 @@ impl Fitter {
             albedo_map: Some(map),
             albedo_spectrum: None,
             relief: Relief::default(),
+            parameter_maps: Vec::new(),
         }
     }
 
@@ -493,20 +497,25 @@ fn scan_powers(fit: &mut Fitter, scan: &ScanRequest, model: Reflectance) {
 }
 
 /// `--scan-large-scale --band 870,1020 [--degree 0|1|2] [--spread S]
-/// [--free-theta]`: fit the listed bands' five parameters each together
-/// with the coefficients of a smooth large-scale factor on the map
-/// (`albedo_map.large_scale`, degree 1: three, degree 2: eight, shared by
-/// the bands, each with a prior of size S) and, with `--free-theta`, the
-/// macroscopic roughness θ̄ (shared); m_lo, γ and the CBOE held at the
-/// shipped values. The objective has all four corners of the libration
-/// range; prints the worst residuals before and after, and at the middles
-/// of the range's edges (not fitted); no body file. How the large-scale
-/// correction and a free θ̄ were judged (docs/MOON.md).
+/// [--free-theta] [--map-phase]`: fit the listed bands' five parameters
+/// each together with the coefficients of a smooth large-scale factor on
+/// the map (`albedo_map.large_scale`, degree 1: three, degree 2: eight,
+/// shared by the bands, each with a prior of size S); with `--free-theta`
+/// the macroscopic roughness θ̄ (shared); with `--map-phase` (one band)
+/// the contrasts δb, δc of b and c maps tied to the mosaic
+/// (`parameter_maps`). m_lo, γ and the CBOE held at the shipped values.
+/// The objective has all four corners of the libration range; prints the
+/// worst residuals before and after, and at the middles of the range's
+/// edges (not fitted); no body file. How these designs were judged
+/// (docs/MOON.md).
 struct LargeScaleScan {
     bands: Vec<usize>,
     spread: f64,
     degree: usize,
     free_theta: bool,
+    /// Maps of b and c that follow the albedo pattern (one band only):
+    /// b(x) = b + δb (t(x) − ½), c likewise, t the normalised mosaic.
+    map_phase: bool,
 }
 
 impl LargeScaleScan {
@@ -544,6 +553,9 @@ impl LargeScaleScan {
         if self.free_theta {
             x0.push(THETA_BAR_DEG.ln());
         }
+        if self.map_phase {
+            x0.extend([0.0, 0.0]);
+        }
         x0
     }
 
@@ -555,7 +567,21 @@ impl LargeScaleScan {
         librations: &[(f64, f64, f64)],
     ) -> Vec<Vec<f64>> {
         let (params, law) = self.split(x);
-        let body = fit.body(law, params[0].model());
+        let mut body = fit.body(law, params[0].model());
+        if self.map_phase {
+            // b and c maps following the albedo pattern (δb, δc last).
+            let (db, dc) = (x[x.len() - 2], x[x.len() - 1]);
+            let p = &params[0];
+            let pattern = |mid: f64, delta: f64| {
+                let mut m = fit.linear_map.clone();
+                m.stretch_power(mid - 0.5 * delta, mid + 0.5 * delta, 1.0);
+                m
+            };
+            body.parameter_maps = vec![
+                (MappedParameter::HapkeB, pattern(p.b, db)),
+                (MappedParameter::HapkeC, pattern(p.c, dc)),
+            ];
+        }
         self.bands
             .iter()
             .zip(&params)
@@ -585,6 +611,10 @@ impl LargeScaleScan {
             "{label} large_scale = {:?}, theta_bar = {:.3} deg",
             law.large_scale, params[0].theta_bar_deg
         );
+        if self.map_phase {
+            let (db, dc) = (x[x.len() - 2], x[x.len() - 1]);
+            println!("{label} map of b: δb = {db:+.4}; map of c: δc = {dc:+.4} (across the mosaic's range)");
+        }
     }
 
     fn run(&self, fit: &mut Fitter) {
@@ -731,7 +761,12 @@ fn main() -> anyhow::Result<()> {
             spread: value("--spread", 0.1)?,
             degree: degree as usize,
             free_theta: args.iter().any(|a| a == "--free-theta"),
+            map_phase: args.iter().any(|a| a == "--map-phase"),
         };
+        anyhow::ensure!(
+            !scan.map_phase || scan.bands.len() == 1,
+            "--map-phase: one band"
+        );
         scan.run(&mut fit);
         return Ok(());
     }

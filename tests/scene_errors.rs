@@ -130,6 +130,55 @@ fn spectral_body_keys_name_their_errors() {
     }
 }
 
+/// `[body] parameter_maps`: the parameter must be one of the model's, once,
+/// with a range it accepts; at most four maps.
+#[test]
+fn parameter_map_keys_name_their_errors() {
+    let on = Setup::new(
+        "{ model = \"oren_nayar\", albedo = 0.2, roughness = 0.3 }",
+        30.0,
+        100.0,
+        100.0,
+    )
+    .toml();
+    let lambert = Setup::new("{ model = \"lambert\", albedo = 0.2 }", 30.0, 100.0, 100.0).toml();
+    let map = |parameter: &str, min: &str, max: &str| {
+        format!("{{ parameter = \"{parameter}\", path = \"../data/maps/lroc_color_poles_2k.tif\", min = {min}, max = {max} }}")
+    };
+    let with = |text: &str, entries: &[String]| {
+        text.replace(
+            "reflectance = { model",
+            &format!(
+                "parameter_maps = [{}]\nreflectance = {{ model",
+                entries.join(", ")
+            ),
+        )
+    };
+    let ok = with(&on, &[map("roughness", "0.1", "0.6")]);
+    let scene = Scene::from_toml(&ok, Path::new("configs/ok.toml")).expect("a roughness map");
+    assert_eq!(scene.body.parameter_maps.len(), 1);
+    let cases: Vec<(&str, String, &str)> = vec![
+        ("not a parameter of the model", with(&on, &[map("b", "0.1", "0.2")]), "body.parameter_maps[0].parameter"),
+        ("the albedo", with(&on, &[map("albedo", "0.1", "0.2")]), "albedo_map"),
+        ("a model without parameters", with(&lambert, &[map("roughness", "0.1", "0.2")]), "body.parameter_maps[0].parameter"),
+        ("mapped twice", with(&on, &[map("roughness", "0.1", "0.2"), map("roughness", "0.2", "0.3")]), "body.parameter_maps[1].parameter"),
+        ("out of range", with(&on, &[map("roughness", "0.1", "2.0")]), "body.parameter_maps[0]"),
+        ("NaN", with(&on, &[map("roughness", "nan", "0.2")]), "body.parameter_maps[0]"),
+        ("min above max", with(&on, &[map("roughness", "0.5", "0.2")]), "body.parameter_maps[0]"),
+        ("five maps", with(&on, &vec![map("roughness", "0.1", "0.2"); 5]), "body.parameter_maps"),
+        ("unknown key", with(&on, &["{ parameter = \"roughness\", path = \"x.png\", min = 0.1, max = 0.2, scale = 2 }".to_string()]), "scale"),
+        ("missing file", with(&on, &["{ parameter = \"roughness\", path = \"none.png\", min = 0.1, max = 0.2 }".to_string()]), "body.parameter_maps[0].path"),
+    ];
+    for (what, text, needle) in cases {
+        let e = error_of(&text);
+        assert!(
+            e.contains(needle),
+            "{what}: error does not name `{needle}`: {e}"
+        );
+        assert!(!e.contains('\n'), "{what}: not one line: {e}");
+    }
+}
+
 /// Errors inside a body file name the body file.
 #[test]
 fn body_file_errors_name_the_body_file() {
@@ -193,6 +242,49 @@ mod spectral_tables {
                     let e = e.to_string();
                     prop_assert!(e.contains("prop.toml"), "{}", e);
                     prop_assert!(e.contains("body."), "{}", e);
+                }
+            }
+        }
+    }
+}
+
+mod parameter_maps {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Any parameter name and range: Ok with every value of the map
+        /// finite and within [min, max], or an error naming the entry.
+        #[test]
+        fn any_entry_is_ok_or_a_named_error(
+            parameter in prop_oneof![Just("roughness".to_string()), Just("b".to_string()), Just("albedo".to_string()), Just("k".to_string()), "[a-z_]{0,12}"],
+            lo in prop_oneof![-3.0f64..3.0, Just(f64::NAN), Just(f64::INFINITY), Just(0.0)],
+            span in -1.0f64..3.0,
+        ) {
+            let dir = tempfile::tempdir().unwrap();
+            let pixels: Vec<u8> = vec![0, 1, 37, 128, 200, 255, 255, 3];
+            image::GrayImage::from_raw(4, 2, pixels).unwrap().save(dir.path().join("m.png")).unwrap();
+            let good = Setup::new("{ model = \"oren_nayar\", albedo = 0.2, roughness = 0.3 }", 30.0, 100.0, 100.0).toml();
+            let hi = lo + span;
+            let num = |v: f64| if v.is_nan() { "nan".to_string() } else if v.is_infinite() { "inf".to_string() } else { format!("{v:e}") };
+            let text = good.replace(
+                "reflectance = { model",
+                &format!("parameter_maps = [{{ parameter = \"{parameter}\", path = \"m.png\", min = {}, max = {} }}]\nreflectance = {{ model", num(lo), num(hi)),
+            );
+            match Scene::from_toml(&text, &dir.path().join("prop.toml")) {
+                Ok(scene) => {
+                    prop_assert_eq!(parameter.as_str(), "roughness");
+                    let (_, map) = &scene.body.parameter_maps[0];
+                    for v in &map.data {
+                        let v = *v as f64;
+                        prop_assert!(v.is_finite() && v >= lo - 1e-6 && v <= hi + 1e-6, "{} not in [{}, {}]", v, lo, hi);
+                    }
+                }
+                Err(e) => {
+                    let e = e.to_string();
+                    prop_assert!(e.contains("prop.toml"), "{}", e);
+                    prop_assert!(e.contains("body.parameter_maps"), "{}", e);
                 }
             }
         }

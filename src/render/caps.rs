@@ -31,10 +31,11 @@ use super::interior::InteriorMask;
 use super::lune::Lune;
 use super::MapFilter;
 use crate::radiometry::fastmath;
-use crate::radiometry::reflectance::Reflectance;
+use crate::radiometry::reflectance::{MappedParameter, Reflectance};
 use crate::radiometry::spectrum::AU;
 use crate::radiometry::ScatteringGeometry;
 use crate::scene::maps::lat_lon;
+use crate::scene::MAX_PARAMETER_MAPS;
 use crate::scene::{Body, EquirectMap, Pinhole};
 
 /// Largest projected size [px] of a leaf cell before it is cut into caps.
@@ -421,6 +422,7 @@ impl Frame<'_> {
         let r = self.radius;
         let model = self.model;
         let needs_body_dir = self.body.albedo_map.is_some()
+            || !self.body.parameter_maps.is_empty()
             || self.body.relief.height.is_some()
             || self.body.relief.normals.is_some();
         let mut total = 0.0;
@@ -529,6 +531,28 @@ impl Frame<'_> {
         total - std::mem::take(&mut sink.skipped)
     }
 
+    /// The model's radiance factor at the body-fixed direction `n_body`:
+    /// with the model's own parameters, or those the body's parameter maps
+    /// give there.
+    #[inline]
+    fn reflect(
+        &self,
+        model: &Reflectance,
+        g: &ScatteringGeometry,
+        albedo: f64,
+        n_body: DVec3,
+    ) -> f64 {
+        let maps = &self.body.parameter_maps;
+        if maps.is_empty() {
+            return model.radiance_factor(g, albedo);
+        }
+        let mut values = [(MappedParameter::Roughness, 0.0); MAX_PARAMETER_MAPS];
+        for (v, (p, map)) in values.iter_mut().zip(maps) {
+            *v = (*p, map.sample_dir(n_body));
+        }
+        model.radiance_factor_with(g, albedo, &values[..maps.len()])
+    }
+
     /// Integrand (per unit solar irradiance at 1 au, without dS) at a cap
     /// centre: f_r μ0 (AU/d_sun)² μ / d_cam² with exact geometry.
     #[allow(clippy::too_many_arguments)]
@@ -573,7 +597,8 @@ impl Frame<'_> {
             }
             let g = ScatteringGeometry { mu0, mu, cos_g };
             let shadow = self.sun_fraction(n_local * r);
-            return model.radiance_factor(&g, albedo) * (AU * AU / sun_sq) * mu / cam_sq * shadow;
+            return self.reflect(model, &g, albedo, n_body) * (AU * AU / sun_sq) * mu / cam_sq
+                * shadow;
         }
         self.relief_integrand(n_local, n_body, cam_local, d_sun, r, model, albedo)
     }
@@ -644,7 +669,8 @@ impl Frame<'_> {
             return 0.0;
         }
         let area_scale = (r / radius) * (r / radius);
-        model.radiance_factor(&g, albedo) * (AU * AU / sun_sq) * projected * area_scale / cam_sq
+        self.reflect(model, &g, albedo, n_body) * (AU * AU / sun_sq) * projected * area_scale
+            / cam_sq
             * self.sun_fraction(p)
     }
 }

@@ -680,10 +680,12 @@ impl PixelRays {
     }
 
     /// Whether interior pixels may interpolate a [`Lattice`]: no occulter
-    /// (its penumbra is not smooth), and without a map any model, with one a
-    /// model quadratic in the albedo.
+    /// (its penumbra is not smooth), no parameter maps (the model's terms
+    /// then vary per point), and without an albedo map any model, with one
+    /// a model quadratic in the albedo.
     fn lattice_applies(&self, frame: &Frame) -> bool {
         frame.occulter.is_none()
+            && frame.body.parameter_maps.is_empty()
             && (frame.body.albedo_map.is_none() || frame.model.is_albedo_quadratic())
     }
 

@@ -14,8 +14,8 @@ use glam::{DQuat, DVec3};
 use serde::Deserialize;
 
 use crate::ephemeris::{self, Ephemeris, Spice};
-use crate::error::{Error, Result};
-use crate::radiometry::reflectance::{Reflectance, ReflectanceConfig};
+use crate::error::{toml_message, Error, Result};
+use crate::radiometry::reflectance::{MappedParameter, Reflectance, ReflectanceConfig};
 use crate::radiometry::spectrum::{Response, SolarSpectrum, Table};
 use crate::render::RenderSettings;
 pub use camera::Pinhole;
@@ -105,7 +105,14 @@ pub struct Body {
     pub albedo_spectrum: Option<Table>,
     /// Displacement and normal maps.
     pub relief: Relief,
+    /// Per-point values of model parameters other than the albedo
+    /// (`parameter_maps`), at most [`MAX_PARAMETER_MAPS`], each parameter once.
+    pub parameter_maps: Vec<(MappedParameter, EquirectMap)>,
 }
+
+/// Most `[body] parameter_maps` entries (one per parameter of the richest
+/// model, Hapke's b, c, h_S and B_S0).
+pub const MAX_PARAMETER_MAPS: usize = 4;
 
 /// Poses of body, camera and Sun in the world (inertial) frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -302,6 +309,21 @@ struct BodyFile {
     albedo_spectrum: Option<Vec<[f64; 2]>>,
     displacement_map: Option<DisplacementMapFile>,
     normal_map: Option<NormalMapFile>,
+    parameter_maps: Option<Vec<ParameterMapFile>>,
+}
+
+/// A map of one model parameter: its values stretched as an albedo map's.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ParameterMapFile {
+    parameter: String,
+    path: PathBuf,
+    min: f64,
+    max: f64,
+    #[serde(default = "unit_power")]
+    power: f64,
+    #[serde(default)]
+    encoding: MapEncoding,
 }
 
 #[derive(Deserialize)]
@@ -560,19 +582,19 @@ impl Scene {
         };
         let base = path.parent().unwrap_or(Path::new("."));
         let probe: BodyProbe =
-            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+            toml::from_str(text).map_err(|e| Error::parse(path, toml_message(text, &e)))?;
         let names_file = probe.body.is_some_and(|b| b.contains_key("file"));
         if !names_file {
             let file: SceneFile =
-                toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+                toml::from_str(text).map_err(|e| Error::parse(path, toml_message(text, &e)))?;
             return Self::build(file, base, base).map_err(to_parse);
         }
         let file: SceneFileBodyRef =
-            toml::from_str(text).map_err(|e| Error::parse(path, e.to_string()))?;
+            toml::from_str(text).map_err(|e| Error::parse(path, toml_message(text, &e)))?;
         let body_path = resolve(base, &file.body.file);
         let body_text = crate::infile::read_text_bounded(&body_path, crate::infile::CONFIG_LIMIT)?;
-        let body: BodyFileOnly =
-            toml::from_str(&body_text).map_err(|e| Error::parse(&body_path, e.to_string()))?;
+        let body: BodyFileOnly = toml::from_str(&body_text)
+            .map_err(|e| Error::parse(&body_path, toml_message(&body_text, &e)))?;
         let body_base = body_path.parent().unwrap_or(Path::new("."));
         let scene = SceneFile {
             camera: file.camera,
@@ -640,30 +662,15 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
     let reflectance = body.reflectance.build()?;
     let albedo_map = match &body.albedo_map {
         Some(m) => {
-            let lo = m.min;
-            let hi = m.max;
-            if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi >= lo) {
-                return Err(Error::invalid(
-                    "body.albedo_map",
-                    "need finite 0 <= min <= max",
-                ));
-            }
-            let (p_lo, p_hi) = MAP_POWER_RANGE;
-            if !(m.power >= p_lo && m.power <= p_hi) {
-                return Err(Error::invalid(
-                    "body.albedo_map.power",
-                    format!("need {p_lo} <= power <= {p_hi}, got {}", m.power),
-                ));
-            }
-            let mut map = match m.encoding {
-                MapEncoding::Linear => load_map(body_base, &m.path, "body.albedo_map.path")?,
-                MapEncoding::Srgb => {
-                    let p = resolve(body_base, &m.path);
-                    EquirectMap::load_srgb(&p)
-                        .map_err(|e| Error::invalid("body.albedo_map.path", e.to_string()))?
-                }
+            let spec = MapSpec {
+                path: &m.path,
+                min: m.min,
+                max: m.max,
+                power: m.power,
+                encoding: m.encoding,
+                nonneg: true,
             };
-            map.stretch_power(lo, hi, m.power);
+            let mut map = spec.load(body_base, "body.albedo_map")?;
             if let Some(c) = &m.large_scale {
                 if let Some(k) = c.iter().position(|v| !(v.abs() <= LARGE_SCALE_MAX)) {
                     return Err(Error::invalid(
@@ -680,6 +687,7 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
         }
         None => None,
     };
+    let parameter_maps = parameter_maps(body, &reflectance, body_base)?;
     let albedo_spectrum = match &body.albedo_spectrum {
         Some(rows) => Some(Table::new(
             rows.iter().map(|r| r[0] * 1e-9).collect(),
@@ -711,7 +719,116 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
         albedo_map,
         albedo_spectrum,
         relief,
+        parameter_maps,
     })
+}
+
+/// An albedo or parameter map's file and how its values are stretched.
+struct MapSpec<'a> {
+    path: &'a Path,
+    min: f64,
+    max: f64,
+    power: f64,
+    encoding: MapEncoding,
+    /// Whether values must be ≥ 0 (an albedo; some parameters may be < 0).
+    nonneg: bool,
+}
+
+impl MapSpec<'_> {
+    /// The map read and stretched to [min, max] by `power`; errors name
+    /// `key`.{min, max, power, path}.
+    fn load(&self, base: &Path, key: &str) -> Result<EquirectMap> {
+        let (lo, hi) = (self.min, self.max);
+        let floor_ok = !self.nonneg || lo >= 0.0;
+        if !(lo.is_finite() && hi.is_finite() && floor_ok && hi >= lo) {
+            let need = if self.nonneg {
+                "0 <= min <= max"
+            } else {
+                "min <= max"
+            };
+            return Err(Error::invalid(key, format!("need finite {need}")));
+        }
+        let (p_lo, p_hi) = MAP_POWER_RANGE;
+        if !(self.power >= p_lo && self.power <= p_hi) {
+            return Err(Error::invalid(
+                format!("{key}.power"),
+                format!("need {p_lo} <= power <= {p_hi}, got {}", self.power),
+            ));
+        }
+        let path_key = format!("{key}.path");
+        let mut map = match self.encoding {
+            MapEncoding::Linear => load_map(base, self.path, &path_key)?,
+            MapEncoding::Srgb => {
+                let p = resolve(base, self.path);
+                EquirectMap::load_srgb(&p).map_err(|e| Error::invalid(&path_key, e.to_string()))?
+            }
+        };
+        map.stretch_power(lo, hi, self.power);
+        Ok(map)
+    }
+}
+
+/// The body's `parameter_maps`: each names a parameter of its model, once,
+/// with a range the parameter accepts.
+fn parameter_maps(
+    body: &BodyFile,
+    model: &Reflectance,
+    base: &Path,
+) -> Result<Vec<(MappedParameter, EquirectMap)>> {
+    let files = body.parameter_maps.as_deref().unwrap_or_default();
+    if files.len() > MAX_PARAMETER_MAPS {
+        return Err(Error::invalid(
+            "body.parameter_maps",
+            format!("at most {MAX_PARAMETER_MAPS} maps, got {}", files.len()),
+        ));
+    }
+    let mut maps: Vec<(MappedParameter, EquirectMap)> = Vec::new();
+    for (i, f) in files.iter().enumerate() {
+        let key = format!("body.parameter_maps[{i}]");
+        let name = crate::error::abbreviate(&f.parameter, 40);
+        if f.parameter == "albedo" || f.parameter == "w" {
+            return Err(Error::invalid(
+                format!("{key}.parameter"),
+                format!("`{name}` is the albedo parameter: map it with albedo_map"),
+            ));
+        }
+        let parameter = MappedParameter::of(model, &f.parameter).map_err(|known| {
+            Error::invalid(
+                format!("{key}.parameter"),
+                format!(
+                    "`{name}` is not a parameter of {} (accepted: {known})",
+                    model.name()
+                ),
+            )
+        })?;
+        if maps.iter().any(|(p, _)| *p == parameter) {
+            return Err(Error::invalid(
+                format!("{key}.parameter"),
+                format!("`{name}` is mapped twice"),
+            ));
+        }
+        if !(parameter.accepts(f.min) && parameter.accepts(f.max)) {
+            return Err(Error::invalid(
+                &key,
+                format!(
+                    "{}: min {} and max {} must both be valid values",
+                    parameter.name(),
+                    f.min,
+                    f.max
+                ),
+            ));
+        }
+        let spec = MapSpec {
+            path: &f.path,
+            min: f.min,
+            max: f.max,
+            power: f.power,
+            encoding: f.encoding,
+            nonneg: false,
+        };
+        maps.push((parameter, spec.load(base, &key)?));
+    }
+    Ok(maps)
 }
 
 impl Body {
@@ -720,7 +837,7 @@ impl Body {
     pub fn from_file(path: &Path) -> Result<Self> {
         let text = crate::infile::read_text_bounded(path, crate::infile::CONFIG_LIMIT)?;
         let file: BodyFileOnly =
-            toml::from_str(&text).map_err(|e| Error::parse(path, e.to_string()))?;
+            toml::from_str(&text).map_err(|e| Error::parse(path, toml_message(&text, &e)))?;
         body_from(&file.body, path.parent().unwrap_or(Path::new(".")))
             .map_err(|e| Error::parse(path, e.to_string()))
     }

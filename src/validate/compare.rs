@@ -468,6 +468,7 @@ pub fn build_scene(
             albedo_map,
             albedo_spectrum: None,
             relief: Relief::default(),
+            parameter_maps: Vec::new(),
         }
     };
     let s = &obs.scene;

@@ -157,7 +157,7 @@ fn as_config(v: f64, table: &Option<SpectralAlbedo>) -> HapkeAlbedo {
 }
 
 /// Precomputed macroscopic-roughness constants (θ̄ > 0).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Roughness {
     tan_tb: f64,
     /// χ(θ̄) = 1/√(1 + π tan²θ̄).
@@ -166,6 +166,56 @@ struct Roughness {
     k1: f64,
     /// 1/(π tan²θ̄): E2(x) = exp(−k2 cot²x).
     k2: f64,
+}
+
+/// The phase-function, shadow-hiding and roughness parameters of one
+/// point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HapkeShape {
+    /// b.
+    pub b: f64,
+    /// c (c > 0 favours backscatter).
+    pub c: f64,
+    /// h_S.
+    pub h_s: f64,
+    /// B_S0.
+    pub b_s0: f64,
+    /// θ̄ (radians).
+    pub theta_bar: f64,
+}
+
+impl Roughness {
+    /// The constants for θ̄; `None` for θ̄ = 0 (a smooth surface).
+    fn of(theta_bar: f64) -> Option<Self> {
+        (theta_bar > 0.0).then(|| {
+            let t = theta_bar.tan();
+            Roughness {
+                tan_tb: t,
+                chi: 1.0 / (1.0 + PI * t * t).sqrt(),
+                k1: 2.0 / (PI * t),
+                k2: 1.0 / (PI * t * t),
+            }
+        })
+    }
+}
+
+impl HapkeShape {
+    /// Double Henyey–Greenstein p(g), Hapke's convention.
+    #[inline]
+    pub fn phase_function(&self, cos_g: f64) -> f64 {
+        let (b, c) = (self.b, self.c);
+        let one_m_b2 = 1.0 - b * b;
+        let back = 1.0 - 2.0 * b * cos_g + b * b;
+        let fwd = 1.0 + 2.0 * b * cos_g + b * b;
+        0.5 * (1.0 + c) * one_m_b2 / (back * back.sqrt())
+            + 0.5 * (1.0 - c) * one_m_b2 / (fwd * fwd.sqrt())
+    }
+
+    /// B_SH(g) = 1 + B_S0/(1 + tan(g/2)/h_S), from tan(g/2).
+    #[inline]
+    pub fn shoe(&self, tan_half_g: f64) -> f64 {
+        1.0 + self.b_s0 / (1.0 + tan_half_g / self.h_s)
+    }
 }
 
 /// Hapke's bidirectional reflectance (IMSA form with the 2002 H function):
@@ -351,15 +401,7 @@ impl Hapke {
                 format!("must be finite and >= 1, got {porosity_k}"),
             ));
         }
-        let roughness = (*theta_bar > 0.0).then(|| {
-            let t = theta_bar.tan();
-            Roughness {
-                tan_tb: t,
-                chi: 1.0 / (1.0 + PI * t * t).sqrt(),
-                k1: 2.0 / (PI * t),
-                k2: 1.0 / (PI * t * t),
-            }
-        });
+        let roughness = Roughness::of(*theta_bar);
         Ok(Self {
             w: w_const,
             spectral,
@@ -437,18 +479,25 @@ impl Hapke {
     /// Double Henyey–Greenstein p(g), Hapke's convention (c > 0: backscatter).
     #[inline]
     pub fn phase_function(&self, cos_g: f64) -> f64 {
-        let (b, c) = (self.b, self.c);
-        let one_m_b2 = 1.0 - b * b;
-        let back = 1.0 - 2.0 * b * cos_g + b * b;
-        let fwd = 1.0 + 2.0 * b * cos_g + b * b;
-        0.5 * (1.0 + c) * one_m_b2 / (back * back.sqrt())
-            + 0.5 * (1.0 - c) * one_m_b2 / (fwd * fwd.sqrt())
+        self.shape().phase_function(cos_g)
     }
 
     /// B_SH(g) = 1 + B_S0/(1 + tan(g/2)/h_S), from tan(g/2).
     #[inline]
     pub fn shoe(&self, tan_half_g: f64) -> f64 {
-        1.0 + self.b_s0 / (1.0 + tan_half_g / self.h_s)
+        self.shape().shoe(tan_half_g)
+    }
+
+    /// The model's own (b, c, h_S, B_S0, θ̄).
+    #[inline]
+    pub fn shape(&self) -> HapkeShape {
+        HapkeShape {
+            b: self.b,
+            c: self.c,
+            h_s: self.h_s,
+            b_s0: self.b_s0,
+            theta_bar: self.theta_bar,
+        }
     }
 
     /// B_CB(g) = 1 + B_C0 [1 + (1 − e^{−x})/x]/(2(1+x)²), x = tan(g/2)/h_C;
@@ -471,71 +520,91 @@ impl Hapke {
     /// μ0 = cos i, μ = cos e ∈ (0, 1] and `cos_psi` = cos ψ. θ̄ = 0 gives
     /// (μ0, μ, 1).
     pub fn shadowing(&self, mu0: f64, mu: f64, cos_psi: f64) -> (f64, f64, f64) {
-        let Some(rg) = &self.roughness else {
-            return (mu0, mu, 1.0);
-        };
-        let (t, chi) = (rg.tan_tb, rg.chi);
-        let (sin_i, sin_e) = (sin_from_cos(mu0), sin_from_cos(mu));
-        // cot x = cos x / sin x (+∞ at x = 0 since cos x > 0); E → 0 there.
-        let (cot_i, cot_e) = (mu0 / sin_i, mu / sin_e);
-        let e1 = |cot: f64| (-rg.k1 * cot).exp();
-        let e2 = |cot: f64| (-rg.k2 * cot * cot).exp();
-        let (e1i, e2i, e1e, e2e) = (e1(cot_i), e2(cot_i), e1(cot_e), e2(cot_e));
-        let eta = |m: f64, s: f64, e1x: f64, e2x: f64| chi * (m + s * t * e2x / (2.0 - e1x));
-        let (eta_i, eta_e) = (eta(mu0, sin_i, e1i, e2i), eta(mu, sin_e, e1e, e2e));
-        let cos_psi = cos_psi.clamp(-1.0, 1.0);
-        let psi = cos_psi.acos();
-        let psi_pi = psi / PI;
-        let s2 = 0.5 * (1.0 - cos_psi); // sin²(ψ/2)
-        let f = (-2.0 * (0.5 * psi).tan()).exp(); // 0 at ψ = π
-        let i_le_e = mu0 >= mu;
-        let (num0, nume, den, a) = if i_le_e {
-            (
-                cos_psi * e2e + s2 * e2i,
-                e2e - s2 * e2i,
-                2.0 - e1e - psi_pi * e1i,
-                mu0 / eta_i,
-            )
-        } else {
-            (
-                e2i - s2 * e2e,
-                cos_psi * e2i + s2 * e2e,
-                2.0 - e1i - psi_pi * e1e,
-                mu / eta_e,
-            )
-        };
-        // den ≥ 0; it vanishes only at the terminator–limb corner with ψ = π.
-        let den = den.max(f64::MIN_POSITIVE);
-        let clamp_mu = |m: f64| {
-            if m.is_nan() {
-                0.0
-            } else {
-                m.clamp(0.0, MU_EFF_MAX)
-            }
-        };
-        let mu0e = clamp_mu(chi * (mu0 + sin_i * t * (num0 / den)));
-        let mue = clamp_mu(chi * (mu + sin_e * t * (nume / den)));
-        // S = (μe/η(e)) (μ0/η(i)) χ / (1 − f + f χ a), a = μ0/η(i) (i ≤ e)
-        // or μ/η(e) (i > e). The denominator vanishes only for f = 1 (ψ = 0)
-        // and a underflowing to 0: the limit is μe/η(e) for i ≤ e, and 0
-        // (μ0 < μ → 0) for i > e.
-        let den_s = (1.0 - f) + f * chi * a;
-        let s = if den_s > 0.0 {
-            (mue / eta_e) * (mu0 / eta_i) * chi / den_s
-        } else if i_le_e {
-            mue / eta_e
-        } else {
-            0.0
-        };
-        (mu0e, mue, s)
+        shadowing(self.roughness.as_ref(), mu0, mu, cos_psi)
     }
+}
 
+/// [`Hapke::shadowing`] with the roughness constants `rg` (None: θ̄ = 0).
+fn shadowing(rg: Option<&Roughness>, mu0: f64, mu: f64, cos_psi: f64) -> (f64, f64, f64) {
+    let Some(rg) = rg else {
+        return (mu0, mu, 1.0);
+    };
+    let (t, chi) = (rg.tan_tb, rg.chi);
+    let (sin_i, sin_e) = (sin_from_cos(mu0), sin_from_cos(mu));
+    // cot x = cos x / sin x (+∞ at x = 0 since cos x > 0); E → 0 there.
+    let (cot_i, cot_e) = (mu0 / sin_i, mu / sin_e);
+    let e1 = |cot: f64| (-rg.k1 * cot).exp();
+    let e2 = |cot: f64| (-rg.k2 * cot * cot).exp();
+    let (e1i, e2i, e1e, e2e) = (e1(cot_i), e2(cot_i), e1(cot_e), e2(cot_e));
+    let eta = |m: f64, s: f64, e1x: f64, e2x: f64| chi * (m + s * t * e2x / (2.0 - e1x));
+    let (eta_i, eta_e) = (eta(mu0, sin_i, e1i, e2i), eta(mu, sin_e, e1e, e2e));
+    let cos_psi = cos_psi.clamp(-1.0, 1.0);
+    let psi = cos_psi.acos();
+    let psi_pi = psi / PI;
+    let s2 = 0.5 * (1.0 - cos_psi); // sin²(ψ/2)
+    let f = (-2.0 * (0.5 * psi).tan()).exp(); // 0 at ψ = π
+    let i_le_e = mu0 >= mu;
+    let (num0, nume, den, a) = if i_le_e {
+        (
+            cos_psi * e2e + s2 * e2i,
+            e2e - s2 * e2i,
+            2.0 - e1e - psi_pi * e1i,
+            mu0 / eta_i,
+        )
+    } else {
+        (
+            e2i - s2 * e2e,
+            cos_psi * e2i + s2 * e2e,
+            2.0 - e1i - psi_pi * e1e,
+            mu / eta_e,
+        )
+    };
+    // den ≥ 0; it vanishes only at the terminator–limb corner with ψ = π.
+    let den = den.max(f64::MIN_POSITIVE);
+    let clamp_mu = |m: f64| {
+        if m.is_nan() {
+            0.0
+        } else {
+            m.clamp(0.0, MU_EFF_MAX)
+        }
+    };
+    let mu0e = clamp_mu(chi * (mu0 + sin_i * t * (num0 / den)));
+    let mue = clamp_mu(chi * (mu + sin_e * t * (nume / den)));
+    // S = (μe/η(e)) (μ0/η(i)) χ / (1 − f + f χ a), a = μ0/η(i) (i ≤ e)
+    // or μ/η(e) (i > e). The denominator vanishes only for f = 1 (ψ = 0)
+    // and a underflowing to 0: the limit is μe/η(e) for i ≤ e, and 0
+    // (μ0 < μ → 0) for i > e.
+    let den_s = (1.0 - f) + f * chi * a;
+    let s = if den_s > 0.0 {
+        (mue / eta_e) * (mu0 / eta_i) * chi / den_s
+    } else if i_le_e {
+        mue / eta_e
+    } else {
+        0.0
+    };
+    (mu0e, mue, s)
+}
+
+impl Hapke {
     /// r = f_r μ0 with single-scattering albedo `w` ∈ [0, 1].
     /// Precondition: μ0, μ ∈ (0, 1], cos g ∈ [−1, 1].
     #[inline]
     pub fn radiance_factor(&self, g: &ScatteringGeometry, w: f64) -> f64 {
+        self.radiance_factor_shaped(g, w, self.shape())
+    }
+
+    /// [`radiance_factor`](Self::radiance_factor) with the phase function,
+    /// the shadow-hiding opposition effect and the roughness of `shape` (a
+    /// parameter map sets them per point).
+    #[inline]
+    pub fn radiance_factor_shaped(&self, g: &ScatteringGeometry, w: f64, shape: HapkeShape) -> f64 {
         let r0 = if w == self.w { self.r0 } else { r0_of(w) };
-        let (mu0e, mue, s) = self.shadowing(g.mu0, g.mu, g.cos_azimuth());
+        let rg = if shape.theta_bar == self.theta_bar {
+            self.roughness
+        } else {
+            Roughness::of(shape.theta_bar)
+        };
+        let (mu0e, mue, s) = shadowing(rg.as_ref(), g.mu0, g.mu, g.cos_azimuth());
         let sum = mu0e + mue;
         if sum.is_nan() || sum <= 0.0 || s <= 0.0 {
             return 0.0;
@@ -543,7 +612,7 @@ impl Hapke {
         let k = self.porosity_k;
         let m = h_with_r0(mu0e / k, w, r0) * h_with_r0(mue / k, w, r0) - 1.0;
         let tg = tan_half_from_cos(g.cos_g);
-        let single = self.phase_function(g.cos_g) * self.shoe(tg);
+        let single = shape.phase_function(g.cos_g) * shape.shoe(tg);
         k * w / (4.0 * PI) * (mu0e / sum) * (single + m) * self.cboe(tg) * s
     }
 }

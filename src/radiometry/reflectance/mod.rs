@@ -27,14 +27,18 @@ mod lommel_seeliger;
 mod lunar_lambert;
 mod minnaert;
 mod oren_nayar;
+mod parameter;
 
 pub use area::Area;
-pub use hapke::{h_function, Hapke, HapkeAlbedo, SpectralAlbedo, REFERENCE_WAVELENGTH_M};
+pub use hapke::{
+    h_function, Hapke, HapkeAlbedo, HapkeShape, SpectralAlbedo, REFERENCE_WAVELENGTH_M,
+};
 pub use lambert::Lambert;
 pub use lommel_seeliger::LommelSeeliger;
 pub use lunar_lambert::LunarLambert;
 pub use minnaert::Minnaert;
 pub use oren_nayar::{OrenNayar, OrenNayarQualitative};
+pub use parameter::MappedParameter;
 
 use crate::error::{Error, Result};
 use crate::radiometry::geometry::ScatteringGeometry;
@@ -253,21 +257,32 @@ impl Reflectance {
     /// possible with an infinite albedo) is returned as 0.
     #[inline]
     pub fn radiance_factor(&self, g: &ScatteringGeometry, albedo: f64) -> f64 {
+        self.radiance_factor_by(g, albedo, |g, a| match self {
+            Reflectance::Area(m) => m.radiance_factor(g, a),
+            Reflectance::Lambert(m) => m.radiance_factor(g, a),
+            Reflectance::LommelSeeliger(m) => m.radiance_factor(g, a),
+            Reflectance::OrenNayar(m) => m.radiance_factor(g, a),
+            Reflectance::OrenNayarQualitative(m) => m.radiance_factor(g, a),
+            Reflectance::LunarLambert(m) => m.radiance_factor(g, a),
+            Reflectance::Minnaert(m) => m.radiance_factor(g, a),
+            Reflectance::Hapke(m) => m.radiance_factor(g, a.min(1.0)),
+        })
+    }
+
+    /// The domain and albedo contract of [`radiance_factor`](Self::radiance_factor)
+    /// around `model(g, albedo)`.
+    #[inline(always)]
+    fn radiance_factor_by(
+        &self,
+        g: &ScatteringGeometry,
+        albedo: f64,
+        model: impl Fn(&ScatteringGeometry, f64) -> f64,
+    ) -> f64 {
         let Some(g) = lit_and_visible(g) else {
             return 0.0;
         };
         let a = if albedo > 0.0 { albedo } else { 0.0 };
-        let r = match self {
-            Reflectance::Area(m) => m.radiance_factor(&g, a),
-            Reflectance::Lambert(m) => m.radiance_factor(&g, a),
-            Reflectance::LommelSeeliger(m) => m.radiance_factor(&g, a),
-            Reflectance::OrenNayar(m) => m.radiance_factor(&g, a),
-            Reflectance::OrenNayarQualitative(m) => m.radiance_factor(&g, a),
-            Reflectance::LunarLambert(m) => m.radiance_factor(&g, a),
-            Reflectance::Minnaert(m) => m.radiance_factor(&g, a),
-            Reflectance::Hapke(m) => m.radiance_factor(&g, a.min(1.0)),
-        };
-        finite_nonneg(r)
+        finite_nonneg(model(&g, a))
     }
 
     /// Bidirectional reflectance f_r = r/μ0 [1/sr]; 0 where
