@@ -725,19 +725,12 @@ impl Texture {
         let mut whole = Shares::default();
         grid_quad_shaped(&mut whole, quad, shape, 1.0);
         // Per pixel: the map-weighted and the unweighted sub-quad shares.
-        let (mut mapped, mut plain) = (Shares::default(), Shares::default());
+        let mut parts = SubShares::default();
         for sub in subs {
-            let mut part = Shares::default();
-            grid_quad_shaped(&mut part, &sub.corners, &sub.shape, 1.0);
-            for &(i, j, v) in part.cells() {
-                mapped.add(i, j, v * sub.share / share_sum);
-                plain.add(i, j, v * sub.flux / flux_sum);
-            }
-            if part.overflow {
-                mapped.overflow = true;
-            }
+            parts.weights = (sub.share / share_sum, sub.flux / flux_sum);
+            grid_quad_shaped(&mut parts, &sub.corners, &sub.shape, 1.0);
         }
-        if whole.overflow || mapped.overflow || plain.overflow {
+        if whole.overflow || parts.overflow {
             // A cap over more than 16 pixels: the sub-quadrilaterals alone.
             for sub in subs {
                 grid_quad_shaped(sink, &sub.corners, &sub.shape, pf * sub.share / share_sum);
@@ -747,20 +740,21 @@ impl Texture {
         // mapped / plain is a weighted mean of share/flux over the subs in
         // the pixel, so it is bounded by their extremes; 1 (the cap's mean)
         // where no sub lands.
-        let weight = |i: i64, j: i64| match (mapped.get(i, j), plain.get(i, j)) {
-            (m, p) if p > 0.0 => m / p,
+        let weight = |i: i64, j: i64| match parts.get(i, j) {
+            Some((m, p)) if p > 0.0 => m / p,
             _ => 1.0,
         };
-        let total: f64 = whole
-            .cells()
-            .iter()
-            .map(|&(i, j, v)| v * weight(i, j))
-            .sum();
+        let mut weighted = [0.0; 16];
+        let mut total = 0.0;
+        for (w, &(i, j, v)) in weighted.iter_mut().zip(whole.cells()) {
+            *w = v * weight(i, j);
+            total += *w;
+        }
         if !(total > 0.0) {
             return;
         }
-        for &(i, j, v) in whole.cells() {
-            sink.add(i, j, pf * v * weight(i, j) / total);
+        for (&w, &(i, j, _)) in weighted.iter().zip(whole.cells()) {
+            sink.add(i, j, pf * w / total);
         }
     }
 
@@ -1259,14 +1253,6 @@ impl Shares {
     fn cells(&self) -> &[(i64, i64, f64)] {
         &self.cells[..self.n]
     }
-
-    /// The value held for pixel (i, j), 0 if none.
-    fn get(&self, i: i64, j: i64) -> f64 {
-        self.cells()
-            .iter()
-            .find(|c| c.0 == i && c.1 == j)
-            .map_or(0.0, |c| c.2)
-    }
 }
 
 impl PixelAdd for Shares {
@@ -1279,6 +1265,58 @@ impl PixelAdd for Shares {
             c.2 += value;
         } else if self.n < self.cells.len() {
             self.cells[self.n] = (i, j, value);
+            self.n += 1;
+        } else {
+            self.overflow = true;
+        }
+    }
+}
+
+/// A mapped cap's k×k sub-quadrilaterals gridded together: per pixel the
+/// sum of their parts weighted by their map share and by their flux share
+/// (`weights`, set before each sub-quadrilateral is gridded).
+#[derive(Clone, Copy)]
+struct SubShares {
+    cells: [(i64, i64, f64, f64); 16],
+    n: usize,
+    weights: (f64, f64),
+    overflow: bool,
+}
+
+impl Default for SubShares {
+    fn default() -> Self {
+        SubShares {
+            cells: [(0, 0, 0.0, 0.0); 16],
+            n: 0,
+            weights: (0.0, 0.0),
+            overflow: false,
+        }
+    }
+}
+
+impl SubShares {
+    /// (map-weighted, flux-weighted) sums for pixel (i, j).
+    #[inline]
+    fn get(&self, i: i64, j: i64) -> Option<(f64, f64)> {
+        self.cells[..self.n]
+            .iter()
+            .find(|c| c.0 == i && c.1 == j)
+            .map(|c| (c.2, c.3))
+    }
+}
+
+impl PixelAdd for SubShares {
+    #[inline]
+    fn add(&mut self, i: i64, j: i64, value: f64) {
+        let (ws, wf) = self.weights;
+        if let Some(c) = self.cells[..self.n]
+            .iter_mut()
+            .find(|c| c.0 == i && c.1 == j)
+        {
+            c.2 += value * ws;
+            c.3 += value * wf;
+        } else if self.n < self.cells.len() {
+            self.cells[self.n] = (i, j, value * ws, value * wf);
             self.n += 1;
         } else {
             self.overflow = true;
