@@ -754,11 +754,16 @@ fn main() -> anyhow::Result<()> {
                 None => Ok(default),
             }
         };
+        let spread = value("--spread", 0.1)?;
+        anyhow::ensure!(
+            spread.is_finite() && spread > 0.0,
+            "--spread: a positive prior size"
+        );
         let degree = value("--degree", 2.0)?;
         anyhow::ensure!([0.0, 1.0, 2.0].contains(&degree), "--degree: 0, 1 or 2");
         let scan = LargeScaleScan {
             bands,
-            spread: value("--spread", 0.1)?,
+            spread,
             degree: degree as usize,
             free_theta: args.iter().any(|a| a == "--free-theta"),
             map_phase: args.iter().any(|a| a == "--map-phase"),

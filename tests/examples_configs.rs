@@ -1,7 +1,8 @@
 //! The bundled examples load and do what their comments say: one scene per
 //! reflection model renders a finite, lit Moon of the expected size; the
 //! close-range scene runs off the frame's left edge with its lit limb in
-//! view; the facility examples per common screen load at their sizes.
+//! view; the roughness-map scene's map is seen; the facility examples per
+//! common screen load at their sizes.
 
 use std::path::{Path, PathBuf};
 
@@ -104,4 +105,31 @@ fn facility_examples_per_common_screen_load_at_their_size() {
         );
         assert!(text.contains(&format!("{w}×{h}")));
     }
+}
+
+/// The roughness-map example differs from the uniform Oren–Nayar example
+/// only by its σ map: the two images' ratio varies across the disk (the
+/// map is seen), and the lit area is the same.
+#[test]
+fn roughness_map_example_varies_the_brightness_across_the_disk() {
+    let (scene, mapped) = render(&configs().join("examples/moon_oren_nayar_roughness_map.toml"));
+    assert_eq!(scene.body.parameter_maps.len(), 1);
+    let (_, uniform) = render(&configs().join("examples/moon_oren_nayar.toml"));
+    let peak = uniform.iter().cloned().fold(0.0f32, f32::max);
+    let ratios: Vec<f32> = mapped
+        .iter()
+        .zip(&uniform)
+        .filter(|(_, &u)| u > 0.2 * peak)
+        .map(|(&m, &u)| m / u)
+        .collect();
+    let lo = ratios.iter().cloned().fold(f32::INFINITY, f32::min);
+    let hi = ratios.iter().cloned().fold(0.0f32, f32::max);
+    eprintln!(
+        "mapped / uniform over {} pixels: {lo:.4} … {hi:.4}",
+        ratios.len()
+    );
+    assert!(ratios.len() > 10_000);
+    assert!(hi / lo > 1.02, "the σ map is not seen: {lo} … {hi}");
+    let lit = |v: &[f32]| v.iter().filter(|&&x| x > 0.0).count() as f64;
+    assert!((lit(&mapped) / lit(&uniform) - 1.0).abs() < 1e-3);
 }

@@ -248,6 +248,28 @@ mod spectral_tables {
     }
 }
 
+/// A scene with `model` and the body line `map_line`, which may name the
+/// 4×2 test map `m.png` written beside it; parsed as `prop.toml` in that
+/// folder (kept alive by the returned guard).
+fn scene_with_tiny_map(
+    model: &str,
+    map_line: &str,
+) -> (tempfile::TempDir, optistim::error::Result<Scene>) {
+    let dir = tempfile::tempdir().unwrap();
+    let pixels: Vec<u8> = vec![0, 1, 37, 128, 200, 255, 255, 3];
+    image::GrayImage::from_raw(4, 2, pixels)
+        .unwrap()
+        .save(dir.path().join("m.png"))
+        .unwrap();
+    let good = Setup::new(model, 30.0, 100.0, 100.0).toml();
+    let text = good.replace(
+        "reflectance = { model",
+        &format!("{map_line}\nreflectance = {{ model"),
+    );
+    let parsed = Scene::from_toml(&text, &dir.path().join("prop.toml"));
+    (dir, parsed)
+}
+
 mod parameter_maps {
     use super::*;
     use proptest::prelude::*;
@@ -262,17 +284,10 @@ mod parameter_maps {
             lo in prop_oneof![-3.0f64..3.0, Just(f64::NAN), Just(f64::INFINITY), Just(0.0)],
             span in -1.0f64..3.0,
         ) {
-            let dir = tempfile::tempdir().unwrap();
-            let pixels: Vec<u8> = vec![0, 1, 37, 128, 200, 255, 255, 3];
-            image::GrayImage::from_raw(4, 2, pixels).unwrap().save(dir.path().join("m.png")).unwrap();
-            let good = Setup::new("{ model = \"oren_nayar\", albedo = 0.2, roughness = 0.3 }", 30.0, 100.0, 100.0).toml();
             let hi = lo + span;
             let num = |v: f64| if v.is_nan() { "nan".to_string() } else if v.is_infinite() { "inf".to_string() } else { format!("{v:e}") };
-            let text = good.replace(
-                "reflectance = { model",
-                &format!("parameter_maps = [{{ parameter = \"{parameter}\", path = \"m.png\", min = {}, max = {} }}]\nreflectance = {{ model", num(lo), num(hi)),
-            );
-            match Scene::from_toml(&text, &dir.path().join("prop.toml")) {
+            let (_dir, parsed) = scene_with_tiny_map("{ model = \"oren_nayar\", albedo = 0.2, roughness = 0.3 }", &format!("parameter_maps = [{{ parameter = \"{parameter}\", path = \"m.png\", min = {}, max = {} }}]", num(lo), num(hi)));
+            match parsed {
                 Ok(scene) => {
                     prop_assert_eq!(parameter.as_str(), "roughness");
                     let (_, map) = &scene.body.parameter_maps[0];
@@ -304,17 +319,10 @@ mod map_power {
             power in prop_oneof![-20.0f64..20.0, Just(f64::NAN), Just(f64::INFINITY), Just(1e-300), Just(0.1), Just(10.0)],
             lo in -0.5f64..1.0, span in -0.5f64..1.0,
         ) {
-            let dir = tempfile::tempdir().unwrap();
-            let pixels: Vec<u8> = vec![0, 1, 37, 128, 200, 255, 255, 3];
-            image::GrayImage::from_raw(4, 2, pixels).unwrap().save(dir.path().join("m.png")).unwrap();
-            let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 100.0).toml();
             let hi = lo + span;
             let power = if power.is_nan() { "nan".to_string() } else if power.is_infinite() { "inf".to_string() } else { format!("{power:e}") };
-            let text = good.replace(
-                "reflectance = { model",
-                &format!("albedo_map = {{ path = \"m.png\", min = {lo:e}, max = {hi:e}, power = {power} }}\nreflectance = {{ model"),
-            );
-            match Scene::from_toml(&text, &dir.path().join("prop.toml")) {
+            let (_dir, parsed) = scene_with_tiny_map("{ model = \"lambert\", albedo = 0.3 }", &format!("albedo_map = {{ path = \"m.png\", min = {lo:e}, max = {hi:e}, power = {power} }}"));
+            match parsed {
                 Ok(scene) => {
                     let map = scene.body.albedo_map.unwrap();
                     for v in &map.data {
@@ -344,16 +352,9 @@ mod map_large_scale {
         fn any_coefficients_are_ok_or_a_named_error(
             c in proptest::collection::vec(prop_oneof![-5.0f64..5.0, Just(f64::NAN), Just(f64::INFINITY), Just(2.0), Just(-2.0)], 8),
         ) {
-            let dir = tempfile::tempdir().unwrap();
-            let pixels: Vec<u8> = vec![0, 1, 37, 128, 200, 255, 255, 3];
-            image::GrayImage::from_raw(4, 2, pixels).unwrap().save(dir.path().join("m.png")).unwrap();
-            let good = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 100.0).toml();
             let list: Vec<String> = c.iter().map(|v| if v.is_nan() { "nan".into() } else if v.is_infinite() { "inf".into() } else { format!("{v:e}") }).collect();
-            let text = good.replace(
-                "reflectance = { model",
-                &format!("albedo_map = {{ path = \"m.png\", min = 0.1, max = 0.4, large_scale = [{}] }}\nreflectance = {{ model", list.join(", ")),
-            );
-            match Scene::from_toml(&text, &dir.path().join("prop.toml")) {
+            let (_dir, parsed) = scene_with_tiny_map("{ model = \"lambert\", albedo = 0.3 }", &format!("albedo_map = {{ path = \"m.png\", min = 0.1, max = 0.4, large_scale = [{}] }}", list.join(", ")));
+            match parsed {
                 Ok(scene) => {
                     prop_assert!(c.iter().all(|v| v.abs() <= 2.0));
                     let map = scene.body.albedo_map.unwrap();

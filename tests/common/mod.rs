@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
+use optistim::radiometry::ScatteringGeometry;
 use optistim::render::detector::{render_scene, PixelGeometry, SceneImages};
 use optistim::render::Renderer;
 use optistim::scene::Scene;
@@ -276,4 +277,81 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect()
+}
+
+/// E at the camera from a sphere at the origin (body frame = world frame),
+/// written independently of the renderer: ∫ r(n) F(p) μ/|c−p|² cos θ dS
+/// over the visible cap, F(p) the band irradiance at p, r the radiance
+/// factor at the surface normal n. `n_gauss`-point Gauss–Legendre in the
+/// angle from the sub-camera point (split where rings cross the
+/// terminator), `n_az` midpoints in azimuth.
+pub fn visible_cap_irradiance(
+    radius: f64,
+    camera: DVec3,
+    sun: DVec3,
+    f_1au: f64,
+    (n_gauss, n_az): (usize, usize),
+    radiance_factor: impl Fn(DVec3, &ScatteringGeometry) -> f64,
+) -> f64 {
+    let d = camera.length();
+    let axis = camera / d;
+    let e1 = axis.any_orthonormal_vector();
+    let e2 = axis.cross(e1);
+    let psi_max = (radius / d).acos();
+    let n = n_gauss;
+    let mut nodes = Vec::new();
+    for k in 1..=n {
+        let mut x = (std::f64::consts::PI * (k as f64 - 0.25) / (n as f64 + 0.5)).cos();
+        for _ in 0..100 {
+            let (mut p0, mut p1) = (1.0, x);
+            for m in 2..=n {
+                let p2 = ((2 * m - 1) as f64 * x * p1 - (m - 1) as f64 * p0) / m as f64;
+                p0 = p1;
+                p1 = p2;
+            }
+            let dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
+            let dx = p1 / dp;
+            x -= dx;
+            if dx.abs() < 1e-16 {
+                nodes.push((x, 2.0 / ((1.0 - x * x) * dp * dp)));
+                break;
+            }
+        }
+    }
+    let alpha = axis.dot(sun.normalize()).clamp(-1.0, 1.0).acos();
+    let kink = (alpha - std::f64::consts::PI / 2.0).abs();
+    let pieces = if kink > 0.0 && kink < psi_max {
+        vec![(0.0, kink), (kink, psi_max)]
+    } else {
+        vec![(0.0, psi_max)]
+    };
+    let mut total = 0.0;
+    for (a, b) in pieces {
+        for &(x, w) in &nodes {
+            let psi = a + 0.5 * (b - a) * (x + 1.0);
+            let (sp, cp) = psi.sin_cos();
+            let mut ring = 0.0;
+            for k in 0..n_az {
+                let beta = (k as f64 + 0.5) * 2.0 * std::f64::consts::PI / n_az as f64;
+                let nrm = axis * cp + (e1 * beta.cos() + e2 * beta.sin()) * sp;
+                let p = nrm * radius;
+                let (to_sun, to_cam) = (sun - p, camera - p);
+                let (ds, dc) = (to_sun.length(), to_cam.length());
+                let (l, v) = (to_sun / ds, to_cam / dc);
+                let g = ScatteringGeometry {
+                    mu0: nrm.dot(l),
+                    mu: nrm.dot(v),
+                    cos_g: l.dot(v),
+                };
+                if g.mu0 <= 0.0 || g.mu <= 0.0 {
+                    continue;
+                }
+                let f = f_1au * (AU / ds).powi(2);
+                let cos_theta = (-to_cam / dc).dot(-axis);
+                ring += radiance_factor(nrm, &g) * f * g.mu / (dc * dc) * cos_theta;
+            }
+            total += w * 0.5 * (b - a) * ring * 2.0 * std::f64::consts::PI / n_az as f64 * sp;
+        }
+    }
+    total * radius * radius
 }

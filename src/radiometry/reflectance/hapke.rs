@@ -599,12 +599,15 @@ impl Hapke {
     #[inline]
     pub fn radiance_factor_shaped(&self, g: &ScatteringGeometry, w: f64, shape: HapkeShape) -> f64 {
         let r0 = if w == self.w { self.r0 } else { r0_of(w) };
+        // The model's own constants unless a map sets θ̄ here.
+        let mapped;
         let rg = if shape.theta_bar == self.theta_bar {
-            self.roughness
+            self.roughness.as_ref()
         } else {
-            Roughness::of(shape.theta_bar)
+            mapped = Roughness::of(shape.theta_bar);
+            mapped.as_ref()
         };
-        let (mu0e, mue, s) = shadowing(rg.as_ref(), g.mu0, g.mu, g.cos_azimuth());
+        let (mu0e, mue, s) = shadowing(rg, g.mu0, g.mu, g.cos_azimuth());
         let sum = mu0e + mue;
         if sum.is_nan() || sum <= 0.0 || s <= 0.0 {
             return 0.0;
