@@ -237,6 +237,7 @@ impl Fitter {
             albedo_spectrum: None,
             relief: Relief::default(),
             parameter_maps: Vec::new(),
+            lime_reference: false,
         }
     }
 
@@ -873,6 +874,8 @@ fn print_body_file(map_law: MapLaw, fitted: &[Params], spectrum: &[(f64, f64)]) 
 # values); b, c, h_S, B_S0 fitted per LIME band.
 [body]
 radius = 1737.4e3
+# Renders report their disk irradiance against LIME (summary.json, `lime`).
+lime_reference = true
 albedo_map = {{ path = "../../data/maps/lroc_color_poles_2k.tif", encoding = "srgb", min = {m_lo:.6}, max = 1.0, power = {power:.6} }}
 
 [body.reflectance]

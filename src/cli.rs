@@ -47,6 +47,18 @@ pub fn render(scene_path: &Path, out: &Path, caps_per_pixel: Option<f64>) -> Res
         scene_path.display(),
         out.display()
     );
+    if let Some(lime) = &s.lime {
+        let caveat = match lime.extrapolated.as_slice() {
+            [] => String::new(),
+            why => format!(" (LIME extrapolated: {})", why.join("; ")),
+        };
+        tracing::info!(
+            "disk irradiance {:.6e} W m-2 against LIME's {:.6e}: render/LIME - 1 = {:+.2} %{caveat}",
+            s.irradiance_all_caps_w_m2,
+            lime.disk_irradiance_w_m2,
+            100.0 * (lime.render_over_lime - 1.0)
+        );
+    }
     Ok(())
 }
 

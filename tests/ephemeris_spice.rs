@@ -505,3 +505,91 @@ fn the_epoch_example_scene_looks_at_the_moon() {
     let range_km = (st.body_position - st.camera_position).length() / 1e3;
     assert!((range_km - 399_781.07).abs() < 2.0, "{range_km}");
 }
+
+/// LIME's geometry (`summary.json`, `lime`) from an epoch, against the
+/// values published in the README of spicedmoon, the geometry library of
+/// the LIME toolbox (CSPICE with DE421, `moon_pa_de421_1900-2050.bpc` and
+/// the MOON_ME frame): at 2025-01-10 00:00:00 UTC an observer at
+/// (4510, 3480, 4060) km from the Earth's centre in J2000 axes sees the
+/// sub-observer point at 2.321035° E, −5.358904° N, the sub-solar point at
+/// 0.9199491 rad E, −0.02542042 rad N, the phase 50.433894°, and the Sun
+/// 147 349 561.9 km from the Moon. Its latitudes are planetographic on an
+/// ellipsoid of radii 1738.1 and 1736.0 km (tan φ_g = tan φ_c / (1 − f)²);
+/// ours are planetocentric, on the sphere (0.013° apart here, which moves
+/// LIME by 1e-5). spicedmoon's `naif0011.tls` lacks the 2017 leap second,
+/// so its epoch is 1 s earlier than ours: ~3e-4° here.
+#[test]
+fn lime_geometry_from_an_epoch_matches_published_values() {
+    let Some(spice) = spice() else { return };
+    let epoch = "2025-01-10T00:00:00";
+    let t = parse_epoch(epoch, "epoch").unwrap();
+    let moon = spice.moon_from_earth(t).unwrap();
+    let camera = DVec3::new(4510.0, 3480.0, 4060.0) * 1e3 - moon;
+    let text = epoch_scene(epoch, "")
+        .replace(
+            "camera_position = [0.0, 0.0, -8.0e7]",
+            &format!(
+                "camera_position = [{:.3}, {:.3}, {:.3}]",
+                camera.x, camera.y, camera.z
+            ),
+        )
+        .replace(
+            "radius = 1737.4e3\n",
+            "radius = 1737.4e3\nlime_reference = true\n",
+        );
+    let path = std::path::Path::new("epoch_scene.toml");
+    let scene = optistim::scene::Scene::from_toml(&text, path).unwrap();
+    let mut renderer = optistim::render::Renderer::new(scene.camera.pinhole.clone());
+    let pixels = optistim::render::detector::PixelGeometry::new(&renderer);
+    let summary = optistim::render::detector::render_scene(&scene, &mut renderer, &pixels)
+        .unwrap()
+        .summary;
+    let g = summary
+        .lime
+        .expect("a lime_reference body reports LIME")
+        .geometry;
+    let flattening: f64 = (1738.1 - 1736.0) / 1738.1;
+    let centric = |graphic_deg: f64| {
+        (graphic_deg.to_radians().tan() * (1.0 - flattening).powi(2))
+            .atan()
+            .to_degrees()
+    };
+    let angles = [
+        (
+            "observer longitude",
+            g.observer_selenographic_lon_deg,
+            2.321034649559275,
+        ),
+        (
+            "observer latitude",
+            g.observer_selenographic_lat_deg,
+            centric(-5.3589043558009095),
+        ),
+        (
+            "Sun longitude",
+            g.sun_selenographic_lon_deg,
+            0.9199491298659819f64.to_degrees(),
+        ),
+        (
+            "Sun latitude",
+            g.sun_selenographic_lat_deg,
+            centric((-0.02542042276583308f64).to_degrees()),
+        ),
+        ("phase", g.phase_deg, 50.433894317010626),
+    ];
+    for (what, got, published) in angles {
+        eprintln!(
+            "{what}: {got}° against {published}° ({:+.1e})",
+            got - published
+        );
+        assert!(
+            (got - published).abs() < 5e-4,
+            "{what}: {got}° against {published}°"
+        );
+    }
+    let sun_km = g.sun_distance_m / 1e3;
+    assert!(
+        (sun_km - 147_349_561.92).abs() < 50.0,
+        "Sun–Moon {sun_km} km"
+    );
+}

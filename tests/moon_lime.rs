@@ -12,7 +12,7 @@
 use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
-use optistim::render::detector::{render_scene, PixelGeometry};
+use optistim::render::detector::{render_scene, PixelGeometry, Summary};
 use optistim::render::Renderer;
 use optistim::scene::Scene;
 
@@ -143,19 +143,27 @@ impl Geometry {
         })
     }
 
-    /// Rendered disk reflectance over a band, LIME's normalisation.
-    fn render(&self, moon: &mut Moon, band_nm: [f64; 2]) -> f64 {
+    /// Render over a band with the whole scene turned by `turn` (the
+    /// Moon's attitude, the camera and the Sun alike).
+    fn summary(&self, moon: &mut Moon, band_nm: [f64; 2], turn: DQuat) -> Summary {
         let obs = unit(self.lat, self.lon.to_radians()) * D0;
         let z = (-obs).normalize();
         let x = DVec3::Z.cross(z).normalize();
         let scene = &mut moon.scene;
-        scene.state.camera_position = obs;
-        scene.state.camera_attitude = DQuat::from_mat3(&DMat3::from_cols(x, z.cross(x), z));
-        scene.state.sun_position = unit(self.sun_lat, self.sun_lon) * AU;
+        scene.state.body_attitude = turn;
+        scene.state.camera_position = turn * obs;
+        scene.state.camera_attitude = turn * DQuat::from_mat3(&DMat3::from_cols(x, z.cross(x), z));
+        scene.state.sun_position = turn * unit(self.sun_lat, self.sun_lon) * AU;
         scene.camera.band = [band_nm[0] * 1e-9, band_nm[1] * 1e-9];
-        let s = render_scene(scene, &mut moon.renderer, &moon.pixels)
+        render_scene(scene, &mut moon.renderer, &moon.pixels)
             .unwrap()
-            .summary;
+            .summary
+    }
+
+    /// Rendered disk reflectance over a band, LIME's normalisation.
+    fn render(&self, moon: &mut Moon, band_nm: [f64; 2]) -> f64 {
+        let s = self.summary(moon, band_nm, DQuat::IDENTITY);
+        let scene = &moon.scene;
         let d_obs = (scene.state.camera_position - scene.state.body_position).length();
         let d_sun = (scene.state.sun_position - scene.state.body_position).length();
         s.irradiance_all_caps_w_m2
@@ -314,6 +322,77 @@ fn band_averaged_reflectance_matches_lime() {
             err.abs() < 0.03,
             "{band:?} nm, g {g}°: render {model:.5} LIME {reference:.5} ({:+.2} %)",
             100.0 * err
+        );
+    }
+}
+
+/// `summary.json`'s `lime` for the bundled Moon (`lime_reference = true`)
+/// against LIME written here: its disk irradiance over the band, Ω/π
+/// (1 au/d_sun)² (d₀/d_obs)² ∫ A E☉ dλ by the trapezoid rule on the composite
+/// spectrum's 0.1 nm grid, and the geometry it was evaluated at, with the
+/// scene turned by an arbitrary rotation (the Moon-fixed frame is not the
+/// world's) and without.
+#[test]
+fn summary_reports_the_render_against_lime() {
+    let lime = Lime::load();
+    let mut moon = Moon::load();
+    let composite = table("data/lime/composite_reflectance.csv");
+    let sun = table("data/solar/astm_e490_am0.csv");
+    let band = [450.0, 820.0];
+    let turns = [
+        DQuat::IDENTITY,
+        DQuat::from_axis_angle(DVec3::new(0.3, -0.5, 0.8).normalize(), 2.1),
+    ];
+    let cases = [
+        (5.0, true, 0),
+        (45.0, false, 3),
+        (75.0, true, 8),
+        (120.0, false, 1),
+    ];
+    for ((g, waxing, lib), turn) in cases.iter().zip(turns.iter().cycle()) {
+        let (lat, lon, sun_lat) = LIBRATIONS[*lib];
+        let geo = Geometry::new(*g, *waxing, lat, lon, sun_lat).unwrap();
+        let s = geo.summary(&mut moon, band, *turn);
+        let reported = s.lime.as_ref().expect("the bundled Moon reports LIME");
+        let steps = ((band[1] - band[0]) / 0.1).round() as usize;
+        let mut integral = 0.0;
+        for i in 0..=steps {
+            let nm = band[0] + i as f64 * 0.1;
+            let wt = if i == 0 || i == steps { 0.05 } else { 0.1 };
+            integral += wt * lerp(&sun, nm) * lime.at(nm, &composite, &geo);
+        }
+        let expected = OMEGA / std::f64::consts::PI * integral; // at 1 au and d₀
+        let err = reported.disk_irradiance_w_m2 / expected - 1.0;
+        let case = format!("g {g}°, waxing {waxing}, libration ({lat}, {lon}), turn {turn:?}");
+        assert!(
+            err.abs() < 2e-5,
+            "{case}: LIME {expected:e}, reported {:e}",
+            reported.disk_irradiance_w_m2
+        );
+        let ratio = s.irradiance_all_caps_w_m2 / expected;
+        assert!(
+            (reported.render_over_lime / ratio - 1.0).abs() < 2e-5,
+            "{case}"
+        );
+        let angles = [
+            (reported.geometry.phase_deg, *g),
+            (reported.geometry.observer_selenographic_lat_deg, lat),
+            (reported.geometry.observer_selenographic_lon_deg, lon),
+            (reported.geometry.sun_selenographic_lat_deg, sun_lat),
+            (
+                reported.geometry.sun_selenographic_lon_deg,
+                geo.sun_lon.to_degrees(),
+            ),
+        ];
+        for (got, want) in angles {
+            assert!((got - want).abs() < 1e-7, "{case}: {got} against {want}");
+        }
+        // LIME is fitted over 2–90°: beyond, the summary says so.
+        assert_eq!(
+            !reported.extrapolated.is_empty(),
+            *g > 90.0,
+            "{case}: {:?}",
+            reported.extrapolated
         );
     }
 }

@@ -107,6 +107,7 @@ fn spectral_body_keys_name_their_errors() {
         ("large_scale NaN", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("1.0, large_scale = [0, 0, nan, 0, 0, 0, 0, 0]"))), "body.albedo_map.large_scale"),
         ("large_scale too short", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("1.0, large_scale = [0, 0, 0]"))), "large_scale"),
         ("map power a string", good.replace("reflectance = { model", &format!("{}reflectance = {{ model", map_power("\"2\""))), "power"),
+        ("lime_reference not a boolean", good.replace("reflectance = { model", "lime_reference = \"yes\"\nreflectance = { model"), "lime_reference"),
         ("albedo spectrum negative", good.replace("reflectance = { model", "albedo_spectrum = [[400.0, -1.0], [500.0, 1.0]]\nreflectance = { model"), "body.albedo_spectrum"),
         ("albedo spectrum one row", good.replace("reflectance = { model", "albedo_spectrum = [[400.0, 1.0]]\nreflectance = { model"), "body.albedo_spectrum"),
         ("energy transmission", good.replace("band = [450e-9, 820e-9]", "band = [450e-9, 820e-9]\ntransmission = { path = \"../data/amie/qe_assumed.csv\", normalisation = \"energy\" }"), "camera.transmission"),

@@ -13,6 +13,7 @@ use serde::Serialize;
 
 use super::{line_of_sight, BandModel, RenderStats, Renderer};
 use crate::error::{Error, Result};
+use crate::radiometry::lime::{Lime, LimeComparison, LunarGeometry};
 use crate::radiometry::reflectance::Reflectance;
 use crate::radiometry::spectrum::{band_integrals, response_integral, BandIntegral};
 use crate::scene::{Body, Scene};
@@ -70,6 +71,10 @@ pub struct Summary {
     pub apparent_radius_deg: f64,
     /// Apparent radius [px] (at the principal point scale).
     pub apparent_radius_px: f64,
+    /// For a body marked `lime_reference`: LIME's disk irradiance over the
+    /// band and the render's over it (`irradiance_all_caps_w_m2`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lime: Option<LimeComparison>,
 }
 
 /// Pixel solid angles and off-axis cosines of one camera, computed once.
@@ -240,10 +245,34 @@ pub fn render_scene(
             band_irradiance_1au_w_m2: bands.iter().map(|b| b.irradiance_1au).sum(),
             apparent_radius_deg: apparent.to_degrees(),
             apparent_radius_px: apparent.tan() * pin.fx,
+            lime: lime_comparison(scene, all_caps),
         },
     };
     images.check_finite()?;
     Ok(images)
+}
+
+/// The render's disk irradiance against LIME, for a body that stands for
+/// the Moon (`[body] lime_reference`); None otherwise or where LIME cannot
+/// be evaluated (a band beyond its composite spectrum).
+fn lime_comparison(scene: &Scene, all_caps: f64) -> Option<LimeComparison> {
+    if !scene.body.lime_reference {
+        return None;
+    }
+    let s = &scene.state;
+    let to_body = s.body_attitude.inverse();
+    let geometry = LunarGeometry::from_moon_fixed(
+        to_body * (s.camera_position - s.body_position),
+        to_body * (s.sun_position - s.body_position),
+    )?;
+    let mut comparison =
+        Lime::embedded().compare(&scene.sun, scene.camera.band, geometry, all_caps)?;
+    if s.occulter.is_some() {
+        comparison
+            .extrapolated
+            .push("an occulter (eclipse) is in the scene; LIME has none".into());
+    }
+    Some(comparison)
 }
 
 impl SceneImages {

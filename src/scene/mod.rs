@@ -108,6 +108,9 @@ pub struct Body {
     /// Per-point values of model parameters other than the albedo
     /// (`parameter_maps`), at most [`MAX_PARAMETER_MAPS`], each parameter once.
     pub parameter_maps: Vec<(MappedParameter, EquirectMap)>,
+    /// The body stands for the real Moon: renders report their disk
+    /// irradiance against LIME (`lime_reference`).
+    pub lime_reference: bool,
 }
 
 /// Most `[body] parameter_maps` entries (one per parameter of the richest
@@ -310,6 +313,8 @@ struct BodyFile {
     displacement_map: Option<DisplacementMapFile>,
     normal_map: Option<NormalMapFile>,
     parameter_maps: Option<Vec<ParameterMapFile>>,
+    #[serde(default)]
+    lime_reference: bool,
 }
 
 /// A map of one model parameter: its values stretched as an albedo map's.
@@ -720,6 +725,7 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
         albedo_spectrum,
         relief,
         parameter_maps,
+        lime_reference: body.lime_reference,
     })
 }
 

@@ -469,6 +469,7 @@ pub fn build_scene(
             albedo_spectrum: None,
             relief: Relief::default(),
             parameter_maps: Vec::new(),
+            lime_reference: false,
         }
     };
     let s = &obs.scene;
