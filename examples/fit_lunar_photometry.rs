@@ -34,6 +34,7 @@ use std::f64::consts::PI;
 use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
+use optistim::radiometry::lime::{Lime, LunarGeometry};
 use optistim::radiometry::reflectance::{
     HapkeAlbedo, MappedParameter, Reflectance, ReflectanceConfig,
 };
@@ -57,57 +58,6 @@ const PHASES: [f64; 12] = [
     2.0, 3.0, 5.0, 7.5, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 75.0, 90.0,
 ];
 
-/// LIME's coefficients, one column per band.
-struct Lime {
-    rows: Vec<(String, [f64; 6])>,
-}
-
-impl Lime {
-    fn load(path: &Path) -> anyhow::Result<Self> {
-        let text = std::fs::read_to_string(path)?;
-        let mut rows = Vec::new();
-        for line in text.lines().skip(1) {
-            let mut f = line.split(',');
-            let name = f.next().unwrap_or_default().to_string();
-            let mut v = [0.0; 6];
-            for x in v.iter_mut() {
-                *x = f.next().unwrap_or("nan").parse()?;
-            }
-            rows.push((name, v));
-        }
-        Ok(Self { rows })
-    }
-
-    fn c(&self, name: &str, k: usize) -> f64 {
-        self.rows
-            .iter()
-            .find(|r| r.0 == name)
-            .map_or(0.0, |r| r.1[k])
-    }
-
-    /// Disk reflectance of band k: g phase [deg], Φ Sun's selenographic
-    /// longitude [rad], θ/φ observer's selenographic lat/lon [deg].
-    fn reflectance(&self, k: usize, g_deg: f64, sun_lon: f64, obs_lat: f64, obs_lon: f64) -> f64 {
-        let c = |n: &str| self.c(n, k);
-        let g = g_deg.to_radians();
-        let ln_a = c("a0")
-            + c("a1") * g
-            + c("a2") * g * g
-            + c("a3") * g.powi(3)
-            + c("b1") * sun_lon
-            + c("b2") * sun_lon.powi(3)
-            + c("b3") * sun_lon.powi(5)
-            + c("c1") * obs_lat
-            + c("c2") * obs_lon
-            + c("c3") * sun_lon * obs_lat
-            + c("c4") * sun_lon * obs_lon
-            + c("d1") * (-g_deg / c("p1")).exp()
-            + c("d2") * (-g_deg / c("p2")).exp()
-            + c("d3") * ((g_deg - c("p3")) / c("p4")).cos();
-        ln_a.exp()
-    }
-}
-
 /// One observation: phase, waxing (Sun east of the observer) or waning,
 /// the observer's selenographic latitude and longitude and the Sun's
 /// latitude [deg] (the librations).
@@ -124,9 +74,8 @@ fn unit(lat_deg: f64, lon: f64) -> DVec3 {
 }
 
 impl Geometry {
-    /// The observer at 384 400 km, the Sun at 1 au placed at the phase;
-    /// also the Sun's selenographic longitude [rad].
-    fn state(&self) -> (State, f64) {
+    /// The observer at 384 400 km, the Sun at 1 au placed at the phase.
+    fn state(&self) -> State {
         let (lat, lon, sun_lat) = self.libration;
         let (t, b) = (lat.to_radians(), sun_lat.to_radians());
         let cos_d = (self.phase_deg.to_radians().cos() - t.sin() * b.sin()) / (t.cos() * b.cos());
@@ -138,15 +87,14 @@ impl Geometry {
         let x = DVec3::Z.cross(z).normalize();
         let y = z.cross(x);
         let att = DQuat::from_mat3(&DMat3::from_cols(x, y, z));
-        let state = State {
+        State {
             body_position: DVec3::ZERO,
             body_attitude: DQuat::IDENTITY,
             camera_position: obs,
             camera_attitude: att,
             sun_position: sun,
             occulter: None,
-        };
-        (state, sun_lon)
+        }
     }
 }
 
@@ -219,7 +167,6 @@ struct MapLaw {
 struct Fitter {
     renderer: Renderer,
     settings: RenderSettings,
-    lime: Lime,
     linear_map: EquirectMap,
 }
 
@@ -244,7 +191,7 @@ impl Fitter {
     /// Rendered disk reflectance in LIME's normalisation.
     fn render(&mut self, body: &Body, p: &Params, g: Geometry) -> f64 {
         let model = p.model();
-        let (state, _) = g.state();
+        let state = g.state();
         let band = BandModel {
             model: Some(&model),
             albedo: None,
@@ -272,9 +219,10 @@ impl Fitter {
     ) -> Vec<f64> {
         geometries(librations)
             .map(|g| {
-                let (_, sun_lon) = g.state();
-                let (lat, lon, _) = g.libration;
-                let lime = self.lime.reflectance(k, g.phase_deg, sun_lon, lat, lon);
+                let state = g.state();
+                let geo = LunarGeometry::from_moon_fixed(state.camera_position, state.sun_position)
+                    .expect("the observer and the Sun are away from the Moon");
+                let lime = Lime::embedded().band_reflectance(k, &geo);
                 (self.render(body, p, g) / lime).ln()
             })
             .collect()
@@ -695,7 +643,6 @@ fn interp(table: &[(f64, f64)], x: f64) -> f64 {
 
 fn main() -> anyhow::Result<()> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let lime = Lime::load(&root.join("data/lime/lime_coefficients_20251010_v01.csv"))?;
     let spectrum = composite(&root.join("data/lime/composite_reflectance.csv"))?;
     let linear_map = EquirectMap::load_srgb(&root.join("data/maps/lroc_color_poles_2k.tif"))?;
     // The Moon ~100 px across at 384 400 km.
@@ -712,7 +659,6 @@ fn main() -> anyhow::Result<()> {
     let mut fit = Fitter {
         renderer: Renderer::new(camera),
         settings: RenderSettings::default(),
-        lime,
         linear_map,
     };
     // Starting values near an earlier run's optimum (any start in the

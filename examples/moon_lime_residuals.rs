@@ -4,12 +4,16 @@
 //!
 //! `cargo run --release --example moon_lime_residuals`
 //!
+//! With `--libration`, it prints instead how much each libration changes
+//! the disk reflectance in LIME and in the model (675 and 1020 nm, 30–90°).
+//!
 //! Beyond 90° both the fit and LIME are extrapolations; the table and the
 //! figure show the disagreement there rather than hiding it.
 
 use std::path::Path;
 
 use glam::{DMat3, DQuat, DVec3};
+use optistim::radiometry::lime::{Lime, LunarGeometry};
 use optistim::radiometry::spectrum::AU;
 use optistim::render::detector::{render_scene, PixelGeometry};
 use optistim::render::Renderer;
@@ -23,33 +27,75 @@ const PHASES: [f64; 16] = [
     2.0, 3.0, 5.0, 7.5, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 75.0, 90.0, 105.0, 120.0, 135.0, 150.0,
 ];
 
-/// LIME's ln A for band k (see data/lime/README.md).
-fn lime(coefs: &[(String, Vec<f64>)], k: usize, g_deg: f64, sun_lon: f64) -> f64 {
-    let c = |n: &str| coefs.iter().find(|r| r.0 == n).map_or(0.0, |r| r.1[k]);
-    let g = g_deg.to_radians();
-    (c("a0")
-        + c("a1") * g
-        + c("a2") * g * g
-        + c("a3") * g.powi(3)
-        + c("b1") * sun_lon
-        + c("b2") * sun_lon.powi(3)
-        + c("b3") * sun_lon.powi(5)
-        + c("d1") * (-g_deg / c("p1")).exp()
-        + c("d2") * (-g_deg / c("p2")).exp()
-        + c("d3") * ((g_deg - c("p3")) / c("p4")).cos())
-    .exp()
+/// A view of the Moon: the observer at selenographic (lat, lon) [deg],
+/// 384 400 km from the centre, the Sun at 1 au at (sun_lat [deg],
+/// sun_lon [rad]).
+#[derive(Clone, Copy)]
+struct View {
+    lat: f64,
+    lon: f64,
+    sun_lat: f64,
+    sun_lon: f64,
 }
 
-/// Rendered disk reflectance at `nm` (1 nm band), observer at selenographic
-/// (0, 0), Sun on the equator at longitude `sun_lon`.
-fn render(root: &Path, nm: f64, sun_lon: f64) -> anyhow::Result<f64> {
-    let obs = DVec3::X * D0;
-    let sun = DVec3::new(sun_lon.cos(), sun_lon.sin(), 0.0) * AU;
-    let z = -DVec3::X;
-    let x = DVec3::Z.cross(z).normalize();
-    let q = DQuat::from_mat3(&DMat3::from_cols(x, z.cross(x), z));
-    let text = format!(
-        r#"[camera]
+fn unit(lat_deg: f64, lon_rad: f64) -> DVec3 {
+    let lat = lat_deg.to_radians();
+    DVec3::new(
+        lat.cos() * lon_rad.cos(),
+        lat.cos() * lon_rad.sin(),
+        lat.sin(),
+    )
+}
+
+impl View {
+    /// Observer on the equator at longitude 0, the Sun on the equator.
+    fn equatorial(sun_lon: f64) -> Self {
+        View {
+            lat: 0.0,
+            lon: 0.0,
+            sun_lat: 0.0,
+            sun_lon,
+        }
+    }
+
+    /// The Sun placed for phase `g_deg` (waxing: east of the observer);
+    /// None where the libration makes it impossible.
+    fn at_phase(g_deg: f64, waxing: bool, (lat, lon, sun_lat): (f64, f64, f64)) -> Option<Self> {
+        let (t, b) = (lat.to_radians(), sun_lat.to_radians());
+        let cos_d = (g_deg.to_radians().cos() - t.sin() * b.sin()) / (t.cos() * b.cos());
+        let sign = if waxing { 1.0 } else { -1.0 };
+        (cos_d.abs() <= 1.0).then(|| View {
+            lat,
+            lon,
+            sun_lat,
+            sun_lon: lon.to_radians() + sign * cos_d.acos(),
+        })
+    }
+
+    fn observer(&self) -> DVec3 {
+        unit(self.lat, self.lon.to_radians()) * D0
+    }
+
+    fn sun(&self) -> DVec3 {
+        unit(self.sun_lat, self.sun_lon) * AU
+    }
+
+    /// LIME's disk reflectance in band k (the library's LIME,
+    /// `src/radiometry/lime.rs`).
+    fn lime(&self, k: usize) -> f64 {
+        let geo = LunarGeometry::from_moon_fixed(self.observer(), self.sun())
+            .expect("the observer and the Sun are away from the Moon");
+        Lime::embedded().band_reflectance(k, &geo)
+    }
+
+    /// Rendered disk reflectance at `nm` (1 nm band), LIME's normalisation.
+    fn render(&self, root: &Path, nm: f64) -> anyhow::Result<f64> {
+        let (obs, sun) = (self.observer(), self.sun());
+        let z = (-obs).normalize();
+        let x = DVec3::Z.cross(z).normalize();
+        let q = DQuat::from_mat3(&DMat3::from_cols(x, z.cross(x), z));
+        let text = format!(
+            r#"[camera]
 resolution = [128, 128]
 pixel_pitch = 1e-5
 fov_deg = 0.66
@@ -63,48 +109,97 @@ spectrum = "../data/solar/astm_e490_am0.csv"
 [body]
 file = "bodies/moon.toml"
 [state]
-camera_position = [{}, 0.0, 0.0]
+camera_position = [{}, {}, {}]
 camera_attitude = [{}, {}, {}, {}]
-sun_position = [{}, {}, 0.0]
+sun_position = [{}, {}, {}]
 "#,
-        obs.x,
-        q.w,
-        q.x,
-        q.y,
-        q.z,
-        sun.x,
-        sun.y,
-        lo = nm - 0.5,
-        hi = nm + 0.5,
-    );
-    let scene = Scene::from_toml(&text, &root.join("configs/residuals.toml"))?;
-    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
-    let pixels = PixelGeometry::new(&renderer);
-    let s = render_scene(&scene, &mut renderer, &pixels)?.summary;
-    Ok(s.irradiance_all_caps_w_m2 * std::f64::consts::PI / (OMEGA * s.band_irradiance_1au_w_m2))
+            obs.x,
+            obs.y,
+            obs.z,
+            q.w,
+            q.x,
+            q.y,
+            q.z,
+            sun.x,
+            sun.y,
+            sun.z,
+            lo = nm - 0.5,
+            hi = nm + 0.5,
+        );
+        let scene = Scene::from_toml(&text, &root.join("configs/residuals.toml"))?;
+        let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+        let pixels = PixelGeometry::new(&renderer);
+        let s = render_scene(&scene, &mut renderer, &pixels)?.summary;
+        Ok(
+            s.irradiance_all_caps_w_m2 * std::f64::consts::PI
+                / (OMEGA * s.band_irradiance_1au_w_m2),
+        )
+    }
+}
+
+/// Observer (lat, lon) and sub-solar latitude [deg]: the corners and edge
+/// middles of the range of the librations (as `tests/moon_lime.rs`).
+const LIBRATIONS: [(f64, f64, f64); 8] = [
+    (6.5, -7.5, 1.5),
+    (-6.5, 7.5, -1.5),
+    (6.5, 7.5, 1.5),
+    (-6.5, -7.5, -1.5),
+    (6.5, 0.0, 1.5),
+    (-6.5, 0.0, -1.5),
+    (0.0, 7.5, 0.0),
+    (0.0, -7.5, 0.0),
+];
+
+/// `--libration`: how much each libration changes the disk reflectance,
+/// in LIME (its c-terms and the shift of Φ) and in the model (the map
+/// seen from elsewhere), ln(A_librated / A_unlibrated) in per cent, at
+/// 30–90° phase.
+fn libration_response(root: &Path) -> anyhow::Result<()> {
+    let bands = [2usize, 4];
+    print!("| phase (°) | | observer (lat, lon) |");
+    for k in bands {
+        print!(" {:.0} nm LIME / model / difference |", BANDS[k]);
+    }
+    println!("\n|---|---|---|{}", "---|".repeat(bands.len()));
+    for g in [30.0, 45.0, 60.0, 75.0, 90.0] {
+        for waxing in [true, false] {
+            let base =
+                View::at_phase(g, waxing, (0.0, 0.0, 0.0)).expect("any phase without libration");
+            let base_values: Vec<(f64, f64)> = bands
+                .iter()
+                .map(|&k| Ok((base.lime(k), base.render(root, BANDS[k])?)))
+                .collect::<anyhow::Result<_>>()?;
+            for lib in LIBRATIONS {
+                let Some(view) = View::at_phase(g, waxing, lib) else {
+                    continue;
+                };
+                let side = if waxing { "waxing" } else { "waning" };
+                print!("| {g} | {side} | ({}, {}) |", lib.0, lib.1);
+                for (&k, (lime0, model0)) in bands.iter().zip(&base_values) {
+                    let lime = 100.0 * (view.lime(k) / lime0).ln();
+                    let model = 100.0 * (view.render(root, BANDS[k])? / model0).ln();
+                    print!(" {lime:+.2} / {model:+.2} / {:+.2} |", model - lime);
+                }
+                println!();
+            }
+        }
+    }
+    Ok(())
 }
 
 fn main() -> anyhow::Result<()> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let text = std::fs::read_to_string(root.join("data/lime/lime_coefficients_20251010_v01.csv"))?;
-    let coefs: Vec<(String, Vec<f64>)> = text
-        .lines()
-        .skip(1)
-        .map(|l| {
-            let mut f = l.split(',');
-            let name = f.next().unwrap_or_default().to_string();
-            (name, f.filter_map(|x| x.parse().ok()).collect())
-        })
-        .collect();
+    if std::env::args().any(|a| a == "--libration") {
+        return libration_response(root);
+    }
     // residuals[band][phase] = (waxing, waning), per cent.
     let mut residuals = vec![Vec::new(); BANDS.len()];
     for (k, &nm) in BANDS.iter().enumerate() {
         for &g in &PHASES {
             let mut pair = [0.0; 2];
             for (i, sign) in [1.0, -1.0].iter().enumerate() {
-                let sun_lon = sign * g.to_radians();
-                let model = render(root, nm, sun_lon)?;
-                pair[i] = 100.0 * (model / lime(&coefs, k, g, sun_lon) - 1.0);
+                let view = View::equatorial(sign * g.to_radians());
+                pair[i] = 100.0 * (view.render(root, nm)? / view.lime(k) - 1.0);
             }
             residuals[k].push(pair);
         }

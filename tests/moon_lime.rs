@@ -365,13 +365,13 @@ fn summary_reports_the_render_against_lime() {
         let err = reported.disk_irradiance_w_m2 / expected - 1.0;
         let case = format!("g {g}°, waxing {waxing}, libration ({lat}, {lon}), turn {turn:?}");
         assert!(
-            err.abs() < 2e-5,
+            err.abs() < 1e-6,
             "{case}: LIME {expected:e}, reported {:e}",
             reported.disk_irradiance_w_m2
         );
         let ratio = s.irradiance_all_caps_w_m2 / expected;
         assert!(
-            (reported.render_over_lime / ratio - 1.0).abs() < 2e-5,
+            (reported.render_over_lime / ratio - 1.0).abs() < 1e-6,
             "{case}"
         );
         let angles = [

@@ -199,11 +199,10 @@ impl Lime {
     /// Disk reflectance at any wavelength [m], as LIME interpolates: the
     /// composite spectrum times the band values' ratio to it, linear in λ
     /// between the bands and constant beyond them.
-    pub fn reflectance(&self, wavelength_m: f64, ratios: &[f64; 6]) -> f64 {
-        let nm = (wavelength_m * 1e9).clamp(BANDS_NM[0], BANDS_NM[5]);
-        let k = BANDS_NM.partition_point(|&b| b <= nm).clamp(1, 5);
-        let t = (nm - BANDS_NM[k - 1]) / (BANDS_NM[k] - BANDS_NM[k - 1]);
-        let ratio = ratios[k - 1] + t * (ratios[k] - ratios[k - 1]);
+    pub fn reflectance(&self, wavelength_m: f64, geo: &LunarGeometry) -> f64 {
+        let ratios = self.ratios(geo);
+        let hats = band_weights(wavelength_m);
+        let ratio: f64 = hats.iter().zip(ratios).map(|(h, r)| h * r).sum();
         self.composite.eval(wavelength_m) * ratio
     }
 
@@ -214,40 +213,46 @@ impl Lime {
         })
     }
 
-    /// LIME's disk irradiance at the observer over `band` [m] under the
-    /// solar spectrum `sun` [W m⁻²]: Ω/π (1 au/d_sun)² (d₀/d_obs)²
-    /// ∫ A(λ) E_sun(λ) dλ; None where the band leaves the composite
-    /// spectrum (350–2550 nm).
-    pub fn disk_irradiance(
-        &self,
-        sun: &SolarSpectrum,
-        band: [f64; 2],
-        geo: &LunarGeometry,
-    ) -> Option<f64> {
-        let knots = &self.composite.wavelengths;
-        if !(band[0] >= knots[0] && band[1] <= knots[knots.len() - 1] && band[1] > band[0]) {
+    /// What LIME needs of a band and a solar spectrum, computed once:
+    /// W_k = ∫ C(λ) h_k(λ) E☉(λ) dλ, with C the composite spectrum and h_k
+    /// the weights of the linear interpolation between the bands, so that
+    /// ∫ A E☉ dλ = Σ_k (A_k / C(λ_k)) W_k at any geometry. None where the
+    /// band leaves the composite spectrum (350–2550 nm).
+    pub fn band(&self, sun: &SolarSpectrum, band: [f64; 2]) -> Option<LimeBand> {
+        let table = &self.composite.wavelengths;
+        if !(band[0] >= table[0] && band[1] <= table[table.len() - 1] && band[1] > band[0]) {
             return None;
         }
-        let ratios = self.ratios(geo);
-        let reflected = integrate(band[0], band[1], knots, |l| {
-            self.reflectance(l, &ratios) * sun.eval(l)
+        let mut knots: Vec<f64> = table.clone();
+        knots.extend(BANDS_NM.map(|nm| nm * 1e-9));
+        knots.sort_by(f64::total_cmp);
+        let weights = std::array::from_fn(|k| {
+            integrate(band[0], band[1], &knots, |l| {
+                self.composite.eval(l) * band_weights(l)[k] * sun.eval(l)
+            })
         });
-        let scale = OMEGA / std::f64::consts::PI
+        Some(LimeBand { band, weights })
+    }
+
+    /// LIME's disk irradiance at the observer over `band` [W m⁻²]:
+    /// Ω/π (1 au/d_sun)² (d₀/d_obs)² ∫ A(λ) E☉(λ) dλ.
+    pub fn disk_irradiance(&self, band: &LimeBand, geo: &LunarGeometry) -> f64 {
+        let ratios = self.ratios(geo);
+        let reflected: f64 = ratios.iter().zip(band.weights).map(|(r, w)| r * w).sum();
+        reflected * OMEGA / std::f64::consts::PI
             * (AU / geo.sun_distance_m).powi(2)
-            * (REFERENCE_DISTANCE / geo.observer_distance_m).powi(2);
-        Some(reflected * scale)
+            * (REFERENCE_DISTANCE / geo.observer_distance_m).powi(2)
     }
 
     /// The render's disk irradiance `rendered` [W m⁻²] over `band` against
-    /// LIME's at `geo`; None where LIME cannot be evaluated.
+    /// LIME's at `geo`; None where LIME's is not positive and finite.
     pub fn compare(
         &self,
-        sun: &SolarSpectrum,
-        band: [f64; 2],
+        band: &LimeBand,
         geo: LunarGeometry,
         rendered: f64,
     ) -> Option<LimeComparison> {
-        let lime = self.disk_irradiance(sun, band, &geo)?;
+        let lime = self.disk_irradiance(band, &geo);
         if !(lime > 0.0 && lime.is_finite()) {
             return None;
         }
@@ -255,9 +260,30 @@ impl Lime {
             disk_irradiance_w_m2: lime,
             render_over_lime: rendered / lime,
             geometry: geo,
-            extrapolated: geo.extrapolations([band[0] * 1e9, band[1] * 1e9]),
+            extrapolated: geo.extrapolations([band.band[0] * 1e9, band.band[1] * 1e9]),
         })
     }
+}
+
+/// A band's integrals for [`Lime::disk_irradiance`] ([`Lime::band`]).
+#[derive(Clone, Debug)]
+pub struct LimeBand {
+    /// The band [m].
+    band: [f64; 2],
+    /// W_k [W m⁻²].
+    weights: [f64; 6],
+}
+
+/// Weights of the six bands in the linear interpolation at a wavelength
+/// [m] (the end bands' values held beyond them); they sum to 1.
+fn band_weights(wavelength_m: f64) -> [f64; 6] {
+    let nm = (wavelength_m * 1e9).clamp(BANDS_NM[0], BANDS_NM[5]);
+    let k = BANDS_NM.partition_point(|&b| b <= nm).clamp(1, 5);
+    let t = (nm - BANDS_NM[k - 1]) / (BANDS_NM[k] - BANDS_NM[k - 1]);
+    let mut w = [0.0; 6];
+    w[k - 1] = 1.0 - t;
+    w[k] = t;
+    w
 }
 
 #[cfg(test)]
@@ -294,9 +320,8 @@ mod tests {
             DVec3::new(0.5, 0.8660254037844386, 0.0) * AU,
         )
         .unwrap();
-        let ratios = lime.ratios(&g);
         for (k, nm) in BANDS_NM.iter().enumerate() {
-            let a = lime.reflectance(nm * 1e-9, &ratios);
+            let a = lime.reflectance(nm * 1e-9, &g);
             assert!((a / lime.band_reflectance(k, &g) - 1.0).abs() < 1e-12);
         }
     }

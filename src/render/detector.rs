@@ -265,8 +265,9 @@ fn lime_comparison(scene: &Scene, all_caps: f64) -> Option<LimeComparison> {
         to_body * (s.camera_position - s.body_position),
         to_body * (s.sun_position - s.body_position),
     )?;
-    let mut comparison =
-        Lime::embedded().compare(&scene.sun, scene.camera.band, geometry, all_caps)?;
+    let lime = Lime::embedded();
+    let band = lime.band(&scene.sun, scene.camera.band)?;
+    let mut comparison = lime.compare(&band, geometry, all_caps)?;
     if s.occulter.is_some() {
         comparison
             .extrapolated
