@@ -15,7 +15,7 @@
 //! | [`timing`] | timing figure of a frame log (`optistim plot-log`) |
 //! | [`throttle`] | repeated warnings logged once per interval, with a count |
 //! | [`config`] | the facility TOML file |
-//! | [`driver`] | the real-time loop of `optistim run` tying these together |
+//! | [`driver`] | the real-time loop of `optistim run` tying these together: the screen model, the render thread, the presenter |
 //!
 //! Per frame, the loop is expected to: take a state ([`udp`] or
 //! [`trajectory`]), render the body's ROI, [`dither::Converter::convert`] it
