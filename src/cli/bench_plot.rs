@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use optistim::figures::{log_x_panels, LogXPanels, Panel, Series};
 use plotters::style::RGBColor;
 
-use super::BenchRow;
+use super::bench::BenchRow;
 
 /// Pixel size of the figure.
 pub(super) const BENCH_FIGURE_SIZE: (u32, u32) = (1400, 620);
