@@ -170,203 +170,56 @@ impl GeometryCalibration {
         screen: (usize, usize),
     ) -> Result<GeometryCalibration> {
         let path = path.as_ref();
-        let err = |line: usize, msg: String| Error::parse(path, format!("line {line}: {msg}"));
-        let mut rows = crate::infile::csv_table::rows(path, bytes, b',');
-        let header = rows.next().transpose()?.ok_or_else(|| {
-            Error::parse(
-                path,
-                "empty file: expected a header naming u_px, v_px, tan_x, tan_y",
-            )
-        })?;
-        let hl = header.line;
-        let names: Vec<&str> = header.cells.iter().collect();
-        let mut col = [usize::MAX; 4];
-        for (i, name) in names.iter().enumerate() {
-            let Some(k) = GEOMETRY_COLUMNS.iter().position(|c| c == name) else {
-                return Err(err(
-                    hl,
-                    format!(
-                        "unknown column `{}` (columns: u_px, v_px, tan_x, tan_y)",
-                        crate::error::abbreviate(name, 40)
-                    ),
-                ));
-            };
-            if col[k] != usize::MAX {
-                return Err(err(hl, format!("column `{name}` appears twice")));
-            }
-            col[k] = i;
-        }
-        if let Some(k) = col.iter().position(|&c| c == usize::MAX) {
-            return Err(err(
-                hl,
-                format!("missing column `{}` in the header", GEOMETRY_COLUMNS[k]),
-            ));
-        }
-
-        // Nodes: (u, v, tan_x, tan_y, line).
-        let mut nodes: Vec<([f64; 4], usize)> = Vec::new();
-        for row in rows {
-            let row = row?;
-            let ln = row.line;
-            let cells: Vec<&str> = row.cells.iter().collect();
-            if cells.len() != names.len() {
-                return Err(err(
-                    ln,
-                    format!("expected {} fields, found {}", names.len(), cells.len()),
-                ));
-            }
-            let mut vals = [0.0f64; 4];
-            for (k, v) in vals.iter_mut().enumerate() {
-                let s = cells[col[k]];
-                let what = GEOMETRY_COLUMNS[k];
-                *v = s.parse().map_err(|_| {
-                    err(
-                        ln,
-                        format!(
-                            "{what}: not a number: `{}`",
-                            crate::error::abbreviate(s, 40)
-                        ),
-                    )
-                })?;
-                if !v.is_finite() {
-                    return Err(err(
-                        ln,
-                        format!(
-                            "{what}: non-finite value `{}`",
-                            crate::error::abbreviate(s, 40)
-                        ),
-                    ));
-                }
-            }
-            nodes.push((vals, ln));
-        }
-
-        // Lattice: distinct u and v values, each pair exactly once.
-        let distinct = |k: usize| {
-            let mut xs: Vec<f64> = nodes.iter().map(|(n, _)| n[k]).collect();
-            xs.sort_by(f64::total_cmp);
-            xs.dedup();
-            xs
-        };
-        let (us, vs) = (distinct(0), distinct(1));
-        if us.len() < 2 || vs.len() < 2 {
-            return Err(Error::parse(
-                path,
-                format!(
-                    "need a lattice of at least 2 × 2 nodes, found {} u_px and {} v_px values",
-                    us.len(),
-                    vs.len()
-                ),
-            ));
-        }
-        let (nu, nv) = (us.len(), vs.len());
-        let mut slot: Vec<Option<usize>> = vec![None; nu * nv];
-        for (idx, (n, ln)) in nodes.iter().enumerate() {
-            let iu = us.partition_point(|&x| x < n[0]);
-            let iv = vs.partition_point(|&x| x < n[1]);
-            if let Some(prev) = slot[iv * nu + iu] {
-                return Err(err(
-                    *ln,
-                    format!("node ({}, {}) repeats line {}", n[0], n[1], nodes[prev].1),
-                ));
-            }
-            slot[iv * nu + iu] = Some(idx);
-        }
-        if let Some(k) = slot.iter().position(Option::is_none) {
-            return Err(Error::parse(
-                path,
-                format!(
-                    "not a rectangular lattice: node (u_px {}, v_px {}) is missing \
-                     ({} rows for {nu} u_px × {nv} v_px values)",
-                    us[k % nu],
-                    vs[k / nu],
-                    nodes.len()
-                ),
-            ));
-        }
-        let (w, h) = (screen.0 as f64, screen.1 as f64);
-        for (name, xs, size) in [("u_px", &us, w), ("v_px", &vs, h)] {
-            if xs[0] > 0.0 || xs[xs.len() - 1] < size {
-                return Err(Error::parse(
-                    path,
-                    format!(
-                        "column {name}: nodes span [{}, {}] but must cover the screen [0, {size}]",
-                        xs[0],
-                        xs[xs.len() - 1]
-                    ),
-                ));
-            }
-        }
-        let order: Vec<usize> = slot.into_iter().map(Option::unwrap).collect();
-        let tan: Vec<[f64; 2]> = order
-            .iter()
-            .map(|&i| [nodes[i].0[2], nodes[i].0[3]])
-            .collect();
-        let line = |iu: usize, iv: usize| nodes[order[iv * nu + iu]].1;
-
-        // No folding: every lattice cell keeps one orientation at its four
-        // corners ...
-        let p = |iu: usize, iv: usize| tan[iv * nu + iu];
-        let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
-            (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-        };
-        let sign = cross(p(0, 0), p(1, 0), p(0, 1)).signum();
-        for iv in 0..nv - 1 {
-            for iu in 0..nu - 1 {
-                // Corner, its neighbour along u, its neighbour along v;
-                // the orientation of (along u, along v) at each corner.
-                let corners = [
-                    ((iu, iv), (iu + 1, iv), (iu, iv + 1), 1.0),
-                    ((iu + 1, iv), (iu, iv), (iu + 1, iv + 1), -1.0),
-                    ((iu, iv + 1), (iu + 1, iv + 1), (iu, iv), -1.0),
-                    ((iu + 1, iv + 1), (iu, iv + 1), (iu + 1, iv), 1.0),
-                ];
-                for (o, a, b, s) in corners {
-                    let c = s * cross(p(o.0, o.1), p(a.0, a.1), p(b.0, b.1));
-                    if !(c * sign > 0.0) {
-                        return Err(err(
-                            line(o.0, o.1),
-                            format!(
-                                "the map folds at node ({}, {}): the lattice cell [{}, {}] × [{}, {}] \
-                                 is flipped or degenerate there (a calibration must map the screen one-to-one)",
-                                us[o.0], vs[o.1], us[iu], us[iu + 1], vs[iv], vs[iv + 1]
-                            ),
-                        ));
-                    }
-                }
-            }
-        }
+        let nodes = read_nodes(bytes, path)?;
+        let lattice = Lattice::arrange(&nodes, path, screen)?;
+        let sign = lattice.check_cells(&nodes, path)?;
+        let Lattice { us, vs, order } = lattice;
         let mut cal = GeometryCalibration {
             path: path.to_path_buf(),
             sha256: sha256_hex(bytes),
             screen,
             u: Axis { nodes: us },
             v: Axis { nodes: vs },
-            tan,
+            tan: order.iter().map(|&i| nodes[i].tan()).collect(),
             finest_scale: 0.0,
         };
+        let line = |iu: usize, iv: usize| nodes[order[iv * cal.u.nodes.len() + iu]].line;
+        cal.finest_scale = cal.check_interpolated(sign, path, line)?;
+        check_ideal_grid(&cal).map_err(|m| Error::parse(path, m))?;
+        Ok(cal)
+    }
 
-        // ... and so does the interpolated map inside every cell (a cubic
-        // can overshoot between nodes that do not fold).
+    /// The interpolated map does not fold inside any lattice cell either
+    /// (a cubic can overshoot between nodes that do not fold): its
+    /// Jacobian keeps the nodes' orientation `sign` on a 4 × 4 grid per
+    /// cell. Returns the map's finest local scale (pixels per unit tangent).
+    fn check_interpolated(
+        &self,
+        sign: f64,
+        path: &Path,
+        line: impl Fn(usize, usize) -> usize,
+    ) -> Result<f64> {
         const SUB: usize = 4;
+        let (us, vs) = (&self.u.nodes, &self.v.nodes);
         let mut finest: f64 = 0.0;
-        for iv in 0..nv - 1 {
-            for iu in 0..nu - 1 {
+        for iv in 0..vs.len() - 1 {
+            for iu in 0..us.len() - 1 {
                 for b in 0..=SUB {
                     for a in 0..=SUB {
                         let fu = a as f64 / SUB as f64;
                         let fv = b as f64 / SUB as f64;
-                        let u = cal.u.nodes[iu] * (1.0 - fu) + cal.u.nodes[iu + 1] * fu;
-                        let v = cal.v.nodes[iv] * (1.0 - fv) + cal.v.nodes[iv + 1] * fv;
-                        let j = cal.jacobian(u, v);
+                        let u = us[iu] * (1.0 - fu) + us[iu + 1] * fu;
+                        let v = vs[iv] * (1.0 - fv) + vs[iv + 1] * fv;
+                        let j = self.jacobian(u, v);
                         let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
                         if !(det * sign > 0.0) {
-                            return Err(err(
+                            return Err(line_error(
+                                path,
                                 line(iu, iv),
                                 format!(
                                     "the interpolated map folds at ({u}, {v}) inside the lattice cell \
                                      starting at node ({}, {}) (Jacobian determinant {det:e})",
-                                    cal.u.nodes[iu], cal.v.nodes[iv]
+                                    us[iu], vs[iv]
                                 ),
                             ));
                         }
@@ -375,9 +228,7 @@ impl GeometryCalibration {
                 }
             }
         }
-        cal.finest_scale = finest;
-        check_ideal_grid(&cal).map_err(|m| Error::parse(path, m))?;
-        Ok(cal)
+        Ok(finest)
     }
 
     /// File the calibration was read from.
@@ -428,6 +279,216 @@ impl GeometryCalibration {
         let du = self.eval(u, v, true, false);
         let dv = self.eval(u, v, false, true);
         [[du[0], dv[0]], [du[1], dv[1]]]
+    }
+}
+
+fn line_error(path: &Path, line: usize, msg: String) -> Error {
+    Error::parse(path, format!("line {line}: {msg}"))
+}
+
+/// One row of a geometry file: screen pixel (u, v), tangent direction.
+struct Node {
+    values: [f64; 4],
+    line: usize,
+}
+
+impl Node {
+    fn tan(&self) -> [f64; 2] {
+        [self.values[2], self.values[3]]
+    }
+}
+
+/// Which cell holds each of [`GEOMETRY_COLUMNS`], from the header row.
+fn column_order(header: &crate::infile::csv_table::Row, path: &Path) -> Result<[usize; 4]> {
+    let hl = header.line;
+    let mut col = [usize::MAX; 4];
+    for (i, name) in header.cells.iter().enumerate() {
+        let Some(k) = GEOMETRY_COLUMNS.iter().position(|c| *c == name) else {
+            return Err(line_error(
+                path,
+                hl,
+                format!(
+                    "unknown column `{}` (columns: u_px, v_px, tan_x, tan_y)",
+                    crate::error::abbreviate(name, 40)
+                ),
+            ));
+        };
+        if col[k] != usize::MAX {
+            return Err(line_error(
+                path,
+                hl,
+                format!("column `{name}` appears twice"),
+            ));
+        }
+        col[k] = i;
+    }
+    if let Some(k) = col.iter().position(|&c| c == usize::MAX) {
+        return Err(line_error(
+            path,
+            hl,
+            format!("missing column `{}` in the header", GEOMETRY_COLUMNS[k]),
+        ));
+    }
+    Ok(col)
+}
+
+/// The file's rows: a header naming the columns, then finite numbers.
+fn read_nodes(bytes: &[u8], path: &Path) -> Result<Vec<Node>> {
+    let mut rows = crate::infile::csv_table::rows(path, bytes, b',');
+    let header = rows.next().transpose()?.ok_or_else(|| {
+        Error::parse(
+            path,
+            "empty file: expected a header naming u_px, v_px, tan_x, tan_y",
+        )
+    })?;
+    let col = column_order(&header, path)?;
+    let mut nodes = Vec::new();
+    for row in rows {
+        let row = row?;
+        let ln = row.line;
+        if row.cells.len() != header.cells.len() {
+            return Err(line_error(
+                path,
+                ln,
+                format!(
+                    "expected {} fields, found {}",
+                    header.cells.len(),
+                    row.cells.len()
+                ),
+            ));
+        }
+        let mut values = [0.0f64; 4];
+        for (k, v) in values.iter_mut().enumerate() {
+            let s = &row.cells[col[k]];
+            let what = GEOMETRY_COLUMNS[k];
+            let shown = crate::error::abbreviate(s, 40);
+            *v = s
+                .parse()
+                .map_err(|_| line_error(path, ln, format!("{what}: not a number: `{shown}`")))?;
+            if !v.is_finite() {
+                return Err(line_error(
+                    path,
+                    ln,
+                    format!("{what}: non-finite value `{shown}`"),
+                ));
+            }
+        }
+        nodes.push(Node { values, line: ln });
+    }
+    Ok(nodes)
+}
+
+/// The nodes as a rectangular lattice: its distinct u and v values and,
+/// row-major (v outer), the node at each.
+struct Lattice {
+    us: Vec<f64>,
+    vs: Vec<f64>,
+    order: Vec<usize>,
+}
+
+impl Lattice {
+    /// Every (u, v) pair exactly once, at least 2 × 2, covering the screen.
+    fn arrange(nodes: &[Node], path: &Path, screen: (usize, usize)) -> Result<Lattice> {
+        let distinct = |k: usize| {
+            let mut xs: Vec<f64> = nodes.iter().map(|n| n.values[k]).collect();
+            xs.sort_by(f64::total_cmp);
+            xs.dedup();
+            xs
+        };
+        let (us, vs) = (distinct(0), distinct(1));
+        if us.len() < 2 || vs.len() < 2 {
+            return Err(Error::parse(
+                path,
+                format!(
+                    "need a lattice of at least 2 × 2 nodes, found {} u_px and {} v_px values",
+                    us.len(),
+                    vs.len()
+                ),
+            ));
+        }
+        let (nu, nv) = (us.len(), vs.len());
+        let mut slot: Vec<Option<usize>> = vec![None; nu * nv];
+        for (idx, n) in nodes.iter().enumerate() {
+            let iu = us.partition_point(|&x| x < n.values[0]);
+            let iv = vs.partition_point(|&x| x < n.values[1]);
+            if let Some(prev) = slot[iv * nu + iu] {
+                return Err(line_error(
+                    path,
+                    n.line,
+                    format!(
+                        "node ({}, {}) repeats line {}",
+                        n.values[0], n.values[1], nodes[prev].line
+                    ),
+                ));
+            }
+            slot[iv * nu + iu] = Some(idx);
+        }
+        if let Some(k) = slot.iter().position(Option::is_none) {
+            return Err(Error::parse(
+                path,
+                format!(
+                    "not a rectangular lattice: node (u_px {}, v_px {}) is missing \
+                     ({} rows for {nu} u_px × {nv} v_px values)",
+                    us[k % nu],
+                    vs[k / nu],
+                    nodes.len()
+                ),
+            ));
+        }
+        let (w, h) = (screen.0 as f64, screen.1 as f64);
+        for (name, xs, size) in [("u_px", &us, w), ("v_px", &vs, h)] {
+            if xs[0] > 0.0 || xs[xs.len() - 1] < size {
+                return Err(Error::parse(
+                    path,
+                    format!(
+                        "column {name}: nodes span [{}, {}] but must cover the screen [0, {size}]",
+                        xs[0],
+                        xs[xs.len() - 1]
+                    ),
+                ));
+            }
+        }
+        let order = slot.into_iter().map(Option::unwrap).collect();
+        Ok(Lattice { us, vs, order })
+    }
+
+    /// No folding at the nodes: every lattice cell keeps one orientation
+    /// at its four corners. Returns that orientation (±1).
+    fn check_cells(&self, nodes: &[Node], path: &Path) -> Result<f64> {
+        let (us, vs) = (&self.us, &self.vs);
+        let (nu, nv) = (us.len(), vs.len());
+        let node = |iu: usize, iv: usize| &nodes[self.order[iv * nu + iu]];
+        let p = |(iu, iv): (usize, usize)| node(iu, iv).tan();
+        let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
+            (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+        };
+        let sign = cross(p((0, 0)), p((1, 0)), p((0, 1))).signum();
+        for iv in 0..nv - 1 {
+            for iu in 0..nu - 1 {
+                // Corner, its neighbour along u, its neighbour along v;
+                // the orientation of (along u, along v) at each corner.
+                let corners = [
+                    ((iu, iv), (iu + 1, iv), (iu, iv + 1), 1.0),
+                    ((iu + 1, iv), (iu, iv), (iu + 1, iv + 1), -1.0),
+                    ((iu, iv + 1), (iu + 1, iv + 1), (iu, iv), -1.0),
+                    ((iu + 1, iv + 1), (iu, iv + 1), (iu + 1, iv), 1.0),
+                ];
+                for (o, a, b, s) in corners {
+                    if !(s * cross(p(o), p(a), p(b)) * sign > 0.0) {
+                        return Err(line_error(
+                            path,
+                            node(o.0, o.1).line,
+                            format!(
+                                "the map folds at node ({}, {}): the lattice cell [{}, {}] × [{}, {}] \
+                                 is flipped or degenerate there (a calibration must map the screen one-to-one)",
+                                us[o.0], vs[o.1], us[iu], us[iu + 1], vs[iv], vs[iv + 1]
+                            ),
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(sign)
     }
 }
 
