@@ -308,14 +308,7 @@ impl Renderer {
         band: &BandModel,
     ) -> RenderStats {
         let model = band.model.unwrap_or(&body.reflectance);
-        // Clear what the previous frame wrote.
-        let w = self.camera.width;
-        let dirty = self.dirty;
-        for row in dirty.y0..dirty.y1 {
-            self.flux[row * w + dirty.x0..row * w + dirty.x1].fill(0.0);
-        }
-        self.dirty = Rect::default();
-
+        self.clear_previous_frame();
         let camera_rel = state.camera_position - state.body_position;
         let sun_rel = state.sun_position - state.body_position;
         let distant = settings.geometry == GeometryMode::Distant;
@@ -347,38 +340,12 @@ impl Renderer {
             texture_samples: settings.texture_samples,
             map_filter: settings.map_filter,
             map_tolerance: settings.map_tolerance,
-            occulter: state.occulter.and_then(|o| {
-                let rel = o.position - state.body_position;
-                let local = DVec3::new(rel.dot(lune.x), rel.dot(lune.y), rel.dot(lune.z));
-                // Skip the per-cap test when no point of the body can be in
-                // the penumbra (margin: the body's own angular size).
-                let sun_dir = DVec3::X;
-                let dist = local.length();
-                let sep = sun_dir.cross(local).length().atan2(sun_dir.dot(local));
-                let a = (caps::SUN_RADIUS / lune.sun_range).asin();
-                let b = (o.radius / dist).min(1.0).asin();
-                let margin = 2.0 * (body.radius / dist).min(1.0).asin();
-                (dist < lune.sun_range && sep < a + b + margin).then_some((local, o.radius))
-            }),
+            occulter: occulter_near(state, &lune, body.radius),
         };
 
         // Lay out the caps: recursive split with culling.
         let t_layout = Instant::now();
-        self.leaves.clear();
-        self.stack.clear();
-        self.stack.push(Cell {
-            t0: 0.0,
-            t1: 1.0,
-            s0: 0.0,
-            s1: 1.0,
-            depth: 0,
-        });
-        let mut roi = Rect::default();
-        while let Some(cell) = self.stack.pop() {
-            if let Some(r) = frame.visit(cell, &mut self.stack, &mut self.leaves) {
-                roi = roi.union(&r);
-            }
-        }
+        let roi = lay_out(&frame, &mut self.stack, &mut self.leaves);
         stats.roi = roi;
         if self.leaves.is_empty() || roi.is_empty() {
             return stats;
@@ -404,73 +371,21 @@ impl Renderer {
         let t_caps = Instant::now();
         stats.stages.mask = (t_caps - t_mask).as_secs_f64();
 
-        // Balance the leaves over the workers by cap count.
-        let caps: u64 = self
-            .leaves
-            .iter()
-            .map(|l| l.n_t as u64 * l.n_s as u64)
-            .sum();
-        stats.caps = caps;
-        let k = self.workers.len();
-        self.chunks.clear();
-        let mut start = 0;
-        let mut acc = 0u64;
-        for (i, leaf) in self.leaves.iter().enumerate() {
-            acc += leaf.n_t as u64 * leaf.n_s as u64;
-            if acc * k as u64 >= caps * (self.chunks.len() as u64 + 1) && self.chunks.len() + 1 < k
-            {
-                self.chunks.push(start..i + 1);
-                start = i + 1;
-            }
-        }
-        self.chunks.push(start..self.leaves.len());
-
-        let area = roi.width() * roi.height();
-        let leaves = &self.leaves;
-        (stats.total_flux, stats.caps_integrated) = self
-            .workers
-            .par_iter_mut()
-            .zip(self.chunks.par_iter())
-            .map(|(worker, range)| {
-                let (buf, rows) = worker;
-                buf.clear();
-                buf.resize(area, 0.0);
-                let mut sink = Sink {
-                    buf,
-                    roi,
-                    interior: mask,
-                    skipped: 0.0,
-                    integrated: 0,
-                };
-                let flux = leaves[range.clone()]
-                    .iter()
-                    .map(|leaf| frame.grid_leaf(leaf, &mut sink, rows))
-                    .sum::<f64>();
-                (flux, sink.integrated)
-            })
-            .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-
-        // Reduce the workers' buffers into the image.
-        let used = self.chunks.len();
-        let workers = &self.workers[..used];
-        let rw = roi.width();
-        self.flux
-            .par_chunks_mut(w)
-            .enumerate()
-            .skip(roi.y0)
-            .take(roi.height())
-            .for_each(|(row, out)| {
-                let local = (row - roi.y0) * rw;
-                let out = &mut out[roi.x0..roi.x1];
-                out.copy_from_slice(&workers[0].0[local..local + rw]);
-                for buf in &workers[1..] {
-                    for (o, v) in out.iter_mut().zip(&buf.0[local..local + rw]) {
-                        *o += v;
-                    }
-                }
-            });
+        // The caps, over the workers, then summed into the image.
+        stats.caps = balance(&self.leaves, self.workers.len(), &mut self.chunks);
+        (stats.total_flux, stats.caps_integrated) = integrate_leaves(
+            &frame,
+            &self.leaves,
+            &self.chunks,
+            &mut self.workers,
+            roi,
+            mask,
+        );
+        let w = self.camera.width;
+        sum_workers(&mut self.flux, w, &self.workers[..self.chunks.len()], roi);
         let t_interior = Instant::now();
         stats.stages.caps = (t_interior - t_caps).as_secs_f64();
+
         if let Some(r) = &rays {
             let (flux, direct) =
                 self.interior
@@ -483,6 +398,126 @@ impl Renderer {
         self.dirty = roi;
         stats
     }
+
+    /// Clears what the previous frame wrote (its region only).
+    fn clear_previous_frame(&mut self) {
+        let w = self.camera.width;
+        let dirty = self.dirty;
+        for row in dirty.y0..dirty.y1 {
+            self.flux[row * w + dirty.x0..row * w + dirty.x1].fill(0.0);
+        }
+        self.dirty = Rect::default();
+    }
+}
+
+/// The occulter of `state` in the lune's frame, when some point of the body
+/// can be in its penumbra (margin: the body's own angular size); None
+/// skips the per-cap shadow test.
+fn occulter_near(state: &State, lune: &Lune, body_radius: f64) -> Option<(DVec3, f64)> {
+    let o = state.occulter?;
+    let rel = o.position - state.body_position;
+    let local = DVec3::new(rel.dot(lune.x), rel.dot(lune.y), rel.dot(lune.z));
+    let sun_dir = DVec3::X;
+    let dist = local.length();
+    let sep = sun_dir.cross(local).length().atan2(sun_dir.dot(local));
+    let a = (caps::SUN_RADIUS / lune.sun_range).asin();
+    let b = (o.radius / dist).min(1.0).asin();
+    let margin = 2.0 * (body_radius / dist).min(1.0).asin();
+    (dist < lune.sun_range && sep < a + b + margin).then_some((local, o.radius))
+}
+
+/// Splits the lune recursively into leaves of caps, culling what the
+/// camera cannot see; returns the image region they cover.
+fn lay_out(frame: &Frame, stack: &mut Vec<Cell>, leaves: &mut Vec<Leaf>) -> Rect {
+    leaves.clear();
+    stack.clear();
+    stack.push(Cell {
+        t0: 0.0,
+        t1: 1.0,
+        s0: 0.0,
+        s1: 1.0,
+        depth: 0,
+    });
+    let mut roi = Rect::default();
+    while let Some(cell) = stack.pop() {
+        if let Some(r) = frame.visit(cell, stack, leaves) {
+            roi = roi.union(&r);
+        }
+    }
+    roi
+}
+
+/// Splits `leaves` into at most `workers` consecutive runs of about equal
+/// cap counts (into `chunks`); returns the caps in all.
+fn balance(leaves: &[Leaf], workers: usize, chunks: &mut Vec<std::ops::Range<usize>>) -> u64 {
+    let caps: u64 = leaves.iter().map(|l| l.n_t as u64 * l.n_s as u64).sum();
+    let k = workers as u64;
+    chunks.clear();
+    let mut start = 0;
+    let mut acc = 0u64;
+    for (i, leaf) in leaves.iter().enumerate() {
+        acc += leaf.n_t as u64 * leaf.n_s as u64;
+        if acc * k >= caps * (chunks.len() as u64 + 1) && chunks.len() + 1 < workers {
+            chunks.push(start..i + 1);
+            start = i + 1;
+        }
+    }
+    chunks.push(start..leaves.len());
+    caps
+}
+
+/// Integrates each chunk of leaves into its worker's buffer over `roi`;
+/// returns the flux and the caps integrated.
+fn integrate_leaves(
+    frame: &Frame,
+    leaves: &[Leaf],
+    chunks: &[std::ops::Range<usize>],
+    workers: &mut [Worker],
+    roi: Rect,
+    mask: Option<&InteriorMask>,
+) -> (f64, u64) {
+    let area = roi.width() * roi.height();
+    workers
+        .par_iter_mut()
+        .zip(chunks.par_iter())
+        .map(|(worker, range)| {
+            let (buf, rows) = worker;
+            buf.clear();
+            buf.resize(area, 0.0);
+            let mut sink = Sink {
+                buf,
+                roi,
+                interior: mask,
+                skipped: 0.0,
+                integrated: 0,
+            };
+            let flux = leaves[range.clone()]
+                .iter()
+                .map(|leaf| frame.grid_leaf(leaf, &mut sink, rows))
+                .sum::<f64>();
+            (flux, sink.integrated)
+        })
+        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+}
+
+/// Sums the workers' buffers (each over `roi`) into the image `flux` of
+/// width `w`.
+fn sum_workers(flux: &mut [f32], w: usize, workers: &[Worker], roi: Rect) {
+    let rw = roi.width();
+    flux.par_chunks_mut(w)
+        .enumerate()
+        .skip(roi.y0)
+        .take(roi.height())
+        .for_each(|(row, out)| {
+            let local = (row - roi.y0) * rw;
+            let out = &mut out[roi.x0..roi.x1];
+            out.copy_from_slice(&workers[0].0[local..local + rw]);
+            for buf in &workers[1..] {
+                for (o, v) in out.iter_mut().zip(&buf.0[local..local + rw]) {
+                    *o += v;
+                }
+            }
+        });
 }
 
 /// What one (sub-)band of a render changes: the reflection model (the
