@@ -427,14 +427,35 @@ impl FacilityConfig {
 
     /// Checks every value's domain; errors name the field.
     pub fn validate(&self) -> Result<()> {
-        let s = &self.screen;
-        if s.resolution.iter().any(|&n| n == 0 || n > MAX_SCREEN_SIDE) {
+        self.screen.validate()?;
+        self.collimator.validate()?;
+        self.alignment
+            .validate(self.calibration.geometry.is_some())?;
+        self.drive.validate()?;
+        self.frame_id.validate(self.screen.resolution)?;
+        self.sync.validate()?;
+        self.timing.validate()
+    }
+
+    /// Screen size `(width, height)`.
+    pub fn screen_size(&self) -> (usize, usize) {
+        (self.screen.resolution[0], self.screen.resolution[1])
+    }
+}
+
+impl ScreenConfig {
+    fn validate(&self) -> Result<()> {
+        if self
+            .resolution
+            .iter()
+            .any(|&n| n == 0 || n > MAX_SCREEN_SIDE)
+        {
             return Err(Error::invalid(
                 "screen.resolution",
                 format!("each side must be in 1..={MAX_SCREEN_SIDE}"),
             ));
         }
-        if let MonitorSelect::Name(n) = &s.monitor {
+        if let MonitorSelect::Name(n) = &self.monitor {
             if n.trim().is_empty() {
                 return Err(Error::invalid(
                     "screen.monitor",
@@ -442,63 +463,72 @@ impl FacilityConfig {
                 ));
             }
         }
-        in_range("screen.pixel_pitch", s.pixel_pitch, 1e-7, 1.0)?;
-        in_range("screen.refresh_hz", s.refresh_hz, 1.0, 1000.0)?;
-        if !(1..=MAX_RENDER_BLOCK).contains(&s.render_block) {
+        in_range("screen.pixel_pitch", self.pixel_pitch, 1e-7, 1.0)?;
+        in_range("screen.refresh_hz", self.refresh_hz, 1.0, 1000.0)?;
+        if !(1..=MAX_RENDER_BLOCK).contains(&self.render_block) {
             return Err(Error::invalid(
                 "screen.render_block",
                 format!(
                     "must be an integer in 1..={MAX_RENDER_BLOCK}, found {}",
-                    s.render_block
+                    self.render_block
                 ),
             ));
         }
-        in_range(
-            "collimator.focal_length",
-            self.collimator.focal_length,
-            1e-3,
-            1e3,
-        )?;
+        Ok(())
+    }
+}
+
+impl CollimatorConfig {
+    fn validate(&self) -> Result<()> {
+        in_range("collimator.focal_length", self.focal_length, 1e-3, 1e3)?;
         // Below 1e-6 the screen would need a million times the scene's
         // radiance: no screen emits that, and the product overflows.
-        in_range(
-            "collimator.transmission",
-            self.collimator.transmission,
-            1e-6,
-            1.0,
-        )?;
-        let a = &self.alignment;
-        for v in a.offset_px {
+        in_range("collimator.transmission", self.transmission, 1e-6, 1.0)
+    }
+}
+
+impl AlignmentConfig {
+    /// `with_geometry`: a geometric calibration file is given, which
+    /// already holds the screen's placement.
+    fn validate(&self, with_geometry: bool) -> Result<()> {
+        for v in self.offset_px {
             in_range("alignment.offset_px", v, -1e6, 1e6)?;
         }
         in_range(
             "alignment.rotation",
-            a.rotation,
+            self.rotation,
             -std::f64::consts::TAU,
             std::f64::consts::TAU,
         )?;
-        if self.calibration.geometry.is_some() {
+        if with_geometry {
             let superseded = "must be absent or zero when calibration.geometry is given \
                               (the geometry file already holds the screen's placement)";
-            if a.offset_px != [0.0, 0.0] {
+            if self.offset_px != [0.0, 0.0] {
                 return Err(Error::invalid("alignment.offset_px", superseded));
             }
-            if a.rotation != 0.0 {
+            if self.rotation != 0.0 {
                 return Err(Error::invalid("alignment.rotation", superseded));
             }
         }
-        let d = &self.drive;
-        if let Some(k) = d.scale_k {
+        Ok(())
+    }
+}
+
+impl DriveConfig {
+    fn validate(&self) -> Result<()> {
+        if let Some(k) = self.scale_k {
             in_range("drive.scale_k", k, 1e-12, 1e12)?;
         }
-        if let Some(v) = d.flight_exposure {
+        if let Some(v) = self.flight_exposure {
             in_range("drive.flight_exposure", v, 1e-9, 1e4)?;
         }
-        if let Some(v) = d.facility_exposure {
+        if let Some(v) = self.facility_exposure {
             in_range("drive.facility_exposure", v, 1e-9, 1e4)?;
         }
-        if d.scale_k.is_none() && (d.flight_exposure.is_some() != d.facility_exposure.is_some()) {
-            let missing = if d.flight_exposure.is_none() {
+        if self.scale_k.is_none()
+            && (self.flight_exposure.is_some() != self.facility_exposure.is_some())
+        {
+            let missing = if self.flight_exposure.is_none() {
                 "drive.flight_exposure"
             } else {
                 "drive.facility_exposure"
@@ -508,66 +538,73 @@ impl FacilityConfig {
                 "missing: both exposures are needed to derive k",
             ));
         }
-        d.k()?;
-        if d.bits != 8 && d.bits != 10 {
+        self.k()?;
+        if self.bits != 8 && self.bits != 10 {
             return Err(Error::invalid(
                 "drive.bits",
-                format!("must be 8 or 10, found {}", d.bits),
+                format!("must be 8 or 10, found {}", self.bits),
             ));
         }
-        if !(1..=16).contains(&d.sub_bands) {
+        if !(1..=16).contains(&self.sub_bands) {
             return Err(Error::invalid(
                 "drive.sub_bands",
-                format!("must be 1 to 16, found {}", d.sub_bands),
+                format!("must be 1 to 16, found {}", self.sub_bands),
             ));
         }
-        let f = &self.frame_id;
-        if !(8..=32).contains(&f.bits) {
+        Ok(())
+    }
+}
+
+impl FrameIdConfig {
+    /// On a screen of `resolution`, which the block must fit.
+    fn validate(&self, resolution: [usize; 2]) -> Result<()> {
+        if !(8..=32).contains(&self.bits) {
             return Err(Error::invalid(
                 "frame_id.bits",
-                format!("must be 8 … 32, found {}", f.bits),
+                format!("must be 8 … 32, found {}", self.bits),
             ));
         }
-        if !(1..=MAX_CELL_PX).contains(&f.cell_px) {
+        if !(1..=MAX_CELL_PX).contains(&self.cell_px) {
             return Err(Error::invalid(
                 "frame_id.cell_px",
-                format!("must be in 1..={MAX_CELL_PX}, found {}", f.cell_px),
+                format!("must be in 1..={MAX_CELL_PX}, found {}", self.cell_px),
             ));
         }
-        if f.enabled {
-            let (w, h) = super::frame_id::FrameIdCode::block_size_for(f.bits, f.cell_px);
-            if w > s.resolution[0] || h > s.resolution[1] {
+        if self.enabled {
+            let (w, h) = super::frame_id::FrameIdCode::block_size_for(self.bits, self.cell_px);
+            if w > resolution[0] || h > resolution[1] {
                 return Err(Error::invalid(
                     "frame_id.cell_px",
                     format!("the {w}×{h} block does not fit on the screen"),
                 ));
             }
         }
-        let y = &self.sync;
+        Ok(())
+    }
+}
+
+impl SyncConfig {
+    fn validate(&self) -> Result<()> {
         // Its errors already name `sync.template`.
-        super::serial::CommandTemplate::parse(&y.template)?;
-        in_range("sync.ack_timeout", y.ack_timeout, 1e-4, 60.0)?;
-        if !(1..=10_000_000).contains(&y.baud) {
+        super::serial::CommandTemplate::parse(&self.template)?;
+        in_range("sync.ack_timeout", self.ack_timeout, 1e-4, 60.0)?;
+        if !(1..=10_000_000).contains(&self.baud) {
             return Err(Error::invalid("sync.baud", "must be in 1..=10000000"));
         }
-        in_range(
-            "timing.state_timeout",
-            self.timing.state_timeout,
-            1e-3,
-            3600.0,
-        )?;
-        if !(1..=120).contains(&self.timing.refreshes_per_frame) {
+        Ok(())
+    }
+}
+
+impl TimingConfig {
+    fn validate(&self) -> Result<()> {
+        in_range("timing.state_timeout", self.state_timeout, 1e-3, 3600.0)?;
+        if !(1..=120).contains(&self.refreshes_per_frame) {
             return Err(Error::invalid(
                 "timing.refreshes_per_frame",
                 "must be in 1..=120",
             ));
         }
         Ok(())
-    }
-
-    /// Screen size `(width, height)`.
-    pub fn screen_size(&self) -> (usize, usize) {
-        (self.screen.resolution[0], self.screen.resolution[1])
     }
 }
 
