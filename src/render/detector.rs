@@ -145,40 +145,9 @@ pub fn render_scene(
             "renderer grid differs from the scene camera".into(),
         ));
     }
-    let n = pin.width * pin.height;
     let bands = plan_bands(scene);
-    let mut radiance = vec![0.0f32; n];
-    let mut electron_rate = vec![0.0f32; n];
-    let mut stats = RenderStats::default();
-    let mut all_caps = 0.0;
-    for band in &bands {
-        let model = scene.body.reflectance.at_wavelength(band.centroid);
-        let band_model = band_model(&scene.body, &model, band.centroid);
-        stats = renderer.render_flux_band(&scene.body, &scene.state, &scene.render, &band_model);
-        all_caps += stats.total_flux * band.irradiance_1au;
-        let flux = renderer.flux();
-        let roi = stats.roi;
-        for row in roi.y0..roi.y1 {
-            for i in row * pin.width + roi.x0..row * pin.width + roi.x1 {
-                let f = flux[i] as f64;
-                radiance[i] += (band.irradiance_1au * f / pixels.solid_angle[i] as f64) as f32;
-                electron_rate[i] += (band.electron_rate_1au * f) as f32;
-            }
-        }
-    }
+    let spectral = render_bands(scene, renderer, pixels, &bands);
     let render_ms = start.elapsed().as_secs_f64() * 1e3;
-
-    // Electrons (with the pupil's projected area: cos⁴ with the exact Ω),
-    // saturation and quantisation.
-    let pupil = cam.pupil_area();
-    let max_dn = cam.max_dn();
-    let los = line_of_sight(&scene.state);
-    let mut electrons = vec![0.0f32; n];
-    let mut dn = vec![0u16; n];
-    let mut total_electrons = 0.0;
-    let mut saturated = 0u64;
-    let mut peak_dn = 0u32;
-    let mut irradiance = 0.0;
     let band_irradiance: f64 = bands.iter().map(|b| b.irradiance_1au).sum();
     let band_electrons: f64 = bands.iter().map(|b| b.electron_rate_1au).sum();
     // L_eff = (∫ L R dλ) ∫E☉ / ∫E☉R; ∫ L R dλ = electron rate / Ω.
@@ -187,69 +156,163 @@ pub fn render_scene(
     } else {
         0.0
     };
-    let mut radiance_effective = vec![0.0f32; n];
-    let mut effective_irradiance = 0.0;
-    let mut weighted = 0.0;
+    let d = detect(scene, pixels, &spectral, to_effective);
+    let range = (scene.state.camera_position - scene.state.body_position).length();
+    let apparent = (scene.body.radius / range).asin();
+    let response = response_integral(&cam.quantum_efficiency, &cam.transmission, cam.band);
+    let response_weighted = if response > 0.0 {
+        d.weighted / response * 1e-9
+    } else {
+        0.0
+    };
+    let images = SceneImages {
+        radiance: spectral.radiance,
+        radiance_effective: d.radiance_effective,
+        electrons: d.electrons,
+        dn: d.dn,
+        summary: Summary {
+            phase_angle_deg: spectral.stats.phase_angle.to_degrees(),
+            irradiance_at_pupil_w_m2: d.irradiance,
+            irradiance_all_caps_w_m2: spectral.all_caps,
+            effective_irradiance_at_pupil_w_m2: d.effective_irradiance,
+            response_weighted_irradiance_w_m2_nm: response_weighted,
+            total_electrons: d.total_electrons,
+            max_dn: d.peak_dn,
+            saturated_pixels: d.saturated,
+            samples: spectral.stats.caps,
+            render_ms,
+            sub_bands: bands.len(),
+            band_irradiance_1au_w_m2: band_irradiance,
+            apparent_radius_deg: apparent.to_degrees(),
+            apparent_radius_px: apparent.tan() * pin.fx,
+            lime: lime_comparison(scene, spectral.all_caps),
+        },
+    };
+    images.check_finite()?;
+    Ok(images)
+}
+
+/// The render summed over the sub-bands.
+struct Spectral {
+    /// Radiance [W m⁻² sr⁻¹].
+    radiance: Vec<f32>,
+    /// Electron rate per unit pupil area and exposure [e⁻ s⁻¹ m⁻²].
+    electron_rate: Vec<f32>,
+    /// Σ over every cap (also outside the image) [W m⁻²].
+    all_caps: f64,
+    /// The last sub-band's statistics (phase, caps).
+    stats: RenderStats,
+}
+
+/// Renders each sub-band at its own model and sums radiance and electron
+/// rate over the bands.
+fn render_bands(
+    scene: &Scene,
+    renderer: &mut Renderer,
+    pixels: &PixelGeometry,
+    bands: &[BandIntegral],
+) -> Spectral {
+    let pin = &scene.camera.pinhole;
+    let n = pin.width * pin.height;
+    let mut out = Spectral {
+        radiance: vec![0.0f32; n],
+        electron_rate: vec![0.0f32; n],
+        all_caps: 0.0,
+        stats: RenderStats::default(),
+    };
+    for band in bands {
+        let model = scene.body.reflectance.at_wavelength(band.centroid);
+        let band_model = band_model(&scene.body, &model, band.centroid);
+        out.stats =
+            renderer.render_flux_band(&scene.body, &scene.state, &scene.render, &band_model);
+        out.all_caps += out.stats.total_flux * band.irradiance_1au;
+        let flux = renderer.flux();
+        let roi = out.stats.roi;
+        for row in roi.y0..roi.y1 {
+            let span = row * pin.width + roi.x0..row * pin.width + roi.x1;
+            let pixels = flux[span.clone()]
+                .iter()
+                .zip(&pixels.solid_angle[span.clone()])
+                .zip(&mut out.radiance[span.clone()])
+                .zip(&mut out.electron_rate[span]);
+            for (((&f, &omega), radiance), rate) in pixels {
+                let f = f as f64;
+                *radiance += (band.irradiance_1au * f / omega as f64) as f32;
+                *rate += (band.electron_rate_1au * f) as f32;
+            }
+        }
+    }
+    out
+}
+
+/// The detector's images and sums.
+#[derive(Default)]
+struct Detected {
+    radiance_effective: Vec<f32>,
+    electrons: Vec<f32>,
+    dn: Vec<u16>,
+    /// Σ L Ω cos θ [W m⁻²].
+    irradiance: f64,
+    /// Σ L_eff Ω cos θ [W m⁻²].
+    effective_irradiance: f64,
+    /// Σ electron rate × cos θ.
+    weighted: f64,
+    total_electrons: f64,
+    saturated: u64,
+    peak_dn: u32,
+}
+
+/// Electrons (with the pupil's projected area: cos⁴ with the exact Ω),
+/// saturation and quantisation, and the camera-effective radiance.
+fn detect(
+    scene: &Scene,
+    pixels: &PixelGeometry,
+    spectral: &Spectral,
+    to_effective: f64,
+) -> Detected {
+    let cam = &scene.camera;
+    let pin = &cam.pinhole;
+    let n = pin.width * pin.height;
+    let pupil = cam.pupil_area();
+    let max_dn = cam.max_dn();
+    let los = line_of_sight(&scene.state);
+    let mut d = Detected {
+        radiance_effective: vec![0.0f32; n],
+        electrons: vec![0.0f32; n],
+        dn: vec![0u16; n],
+        ..Default::default()
+    };
     for j in 0..pin.height {
         for i in 0..pin.width {
             let k = j * pin.width + i;
-            if radiance[k] == 0.0 {
+            if spectral.radiance[k] == 0.0 {
                 continue;
             }
             let dir = pin.pixel_direction(i, j);
             let cos_los = dir.dot(los);
-            irradiance += radiance[k] as f64 * pixels.solid_angle[k] as f64 * cos_los;
-            let effective = electron_rate[k] as f64 * to_effective / pixels.solid_angle[k] as f64;
-            radiance_effective[k] = effective as f32;
-            effective_irradiance += effective * pixels.solid_angle[k] as f64 * cos_los;
-            weighted += electron_rate[k] as f64 * cos_los;
-            let mut e = cam.exposure * pupil * dir.z * electron_rate[k] as f64;
+            let omega = pixels.solid_angle[k] as f64;
+            let rate = spectral.electron_rate[k] as f64;
+            d.irradiance += spectral.radiance[k] as f64 * omega * cos_los;
+            let effective = rate * to_effective / omega;
+            d.radiance_effective[k] = effective as f32;
+            d.effective_irradiance += effective * omega * cos_los;
+            d.weighted += rate * cos_los;
+            let mut e = cam.exposure * pupil * dir.z * rate;
+            // Not `min`: a NaN must stay NaN for `check_finite` to see it.
             if e >= cam.full_well {
                 e = cam.full_well;
             }
             let level = (e * cam.gain).round().min(max_dn);
             if e >= cam.full_well || level >= max_dn {
-                saturated += 1;
+                d.saturated += 1;
             }
-            electrons[k] = e as f32;
-            total_electrons += e;
-            dn[k] = level.min(u16::MAX as f64) as u16;
-            peak_dn = peak_dn.max(level as u32);
+            d.electrons[k] = e as f32;
+            d.total_electrons += e;
+            d.dn[k] = level.min(u16::MAX as f64) as u16;
+            d.peak_dn = d.peak_dn.max(level as u32);
         }
     }
-    let range = (scene.state.camera_position - scene.state.body_position).length();
-    let apparent = (scene.body.radius / range).asin();
-    let response = response_integral(&cam.quantum_efficiency, &cam.transmission, cam.band);
-    let response_weighted = if response > 0.0 {
-        weighted / response * 1e-9
-    } else {
-        0.0
-    };
-    let images = SceneImages {
-        radiance,
-        radiance_effective,
-        electrons,
-        dn,
-        summary: Summary {
-            phase_angle_deg: stats.phase_angle.to_degrees(),
-            irradiance_at_pupil_w_m2: irradiance,
-            irradiance_all_caps_w_m2: all_caps,
-            effective_irradiance_at_pupil_w_m2: effective_irradiance,
-            response_weighted_irradiance_w_m2_nm: response_weighted,
-            total_electrons,
-            max_dn: peak_dn,
-            saturated_pixels: saturated,
-            samples: stats.caps,
-            render_ms,
-            sub_bands: bands.len(),
-            band_irradiance_1au_w_m2: bands.iter().map(|b| b.irradiance_1au).sum(),
-            apparent_radius_deg: apparent.to_degrees(),
-            apparent_radius_px: apparent.tan() * pin.fx,
-            lime: lime_comparison(scene, all_caps),
-        },
-    };
-    images.check_finite()?;
-    Ok(images)
+    d
 }
 
 /// The render's disk irradiance against LIME, for a body that stands for
