@@ -175,27 +175,7 @@ impl SyncPort for NoSync {
 pub fn run(args: &RunArgs) -> Result<()> {
     let config = args.calibration.load_facility(&args.facility)?;
     let scene = Scene::from_file(&config.scenario.scene)?;
-    let source = match (&args.listen, &args.trajectory, &config.scenario.trajectory) {
-        (Some(url), _, _) => {
-            let addr = url.strip_prefix("udp://").unwrap_or(url);
-            StateSource::Udp {
-                bind: addr
-                    .parse()
-                    .with_context(|| format!("--listen: `{url}` is not udp://HOST:PORT"))?,
-                sender: args
-                    .sender
-                    .parse()
-                    .with_context(|| format!("--sender: `{}` is not HOST:PORT", args.sender))?,
-            }
-        }
-        (None, Some(path), _) | (None, None, Some(path)) => {
-            StateSource::Replay(load_trajectory(path, args.kernels.as_deref())?)
-        }
-        (None, None, None) => anyhow::bail!(
-            "no state source: give --trajectory or --listen, or set scenario.trajectory in {}",
-            args.facility.display()
-        ),
-    };
+    let source = state_source(args, &config)?;
     for p in [&args.log, &args.summary] {
         if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -210,21 +190,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
             .context("installing the Ctrl-C handler")?;
     }
-    let serial_choice = args
-        .serial
-        .clone()
-        .or_else(|| config.sync.port.as_ref().map(|p| p.display().to_string()))
-        .unwrap_or_else(|| "sim".into());
-    let mut sync: Box<dyn SyncPort> = match serial_choice.as_str() {
-        // The last exchanges only: a long run must not grow.
-        "sim" => Box::new(SimSync::with_history(64)),
-        "none" => Box::new(NoSync),
-        path => Box::new(SerialPortSync::open(SerialOptions::new(
-            path,
-            config.sync.baud,
-        ))?),
-    };
-    let (w, h) = config.screen_size();
+    let mut sync = sync_port(args, &config)?;
     let plan = RunPlan {
         config,
         scene,
@@ -233,48 +199,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         log: args.log.clone(),
         summary: args.summary.clone(),
     };
-    let summary = match args.display.as_str() {
-        "sim" => {
-            let keep = if args.dump.is_some() { 120 } else { 1 };
-            let mut display = SimDisplay::new(w, h, keep);
-            let s = driver::run(plan, &mut display, sync.as_mut(), stop)?;
-            if let Some(dir) = &args.dump {
-                let files = display.dump_png(dir)?;
-                tracing::info!("wrote {} frames to {}", files.len(), dir.display());
-            }
-            s
-        }
-        "window" => {
-            let mut display = WindowDisplay::open(&WindowOptions {
-                monitor: plan.config.screen.monitor.clone(),
-                resolution: Some((w, h)),
-                title: "optistim".into(),
-            })?;
-            driver::run(plan, &mut display, sync.as_mut(), stop)?
-        }
-        "sim-facility" => {
-            let path = args
-                .sim_facility
-                .as_ref()
-                .context("--display sim-facility needs --sim-facility FILE")?;
-            let facility = optistim::simfacility::SimFacility::load(path)?;
-            let mut display = optistim::simfacility::RecordingScreen::new(
-                &facility,
-                &args.captures,
-                args.capture_every,
-            )?;
-            let s = driver::run(plan, &mut display, sync.as_mut(), stop)?;
-            let written = display.written.len();
-            tracing::info!(
-                "the simulated camera wrote {written} frames to {}",
-                args.captures.display()
-            );
-            s
-        }
-        other => {
-            anyhow::bail!("--display must be `sim`, `window` or `sim-facility`, not `{other}`")
-        }
-    };
+    let summary = run_on_display(args, plan, sync.as_mut(), stop)?;
     let lat = &summary.latency_state_to_present;
     let ms = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{:.2} ms", x * 1e3));
     println!(
@@ -292,6 +217,105 @@ pub fn run(args: &RunArgs) -> Result<()> {
         args.summary.display()
     );
     Ok(())
+}
+
+/// Where states come from: `--listen`, else `--trajectory`, else the
+/// facility file's `scenario.trajectory`.
+fn state_source(args: &RunArgs, config: &FacilityConfig) -> Result<StateSource> {
+    Ok(
+        match (&args.listen, &args.trajectory, &config.scenario.trajectory) {
+            (Some(url), _, _) => {
+                let addr = url.strip_prefix("udp://").unwrap_or(url);
+                StateSource::Udp {
+                    bind: addr
+                        .parse()
+                        .with_context(|| format!("--listen: `{url}` is not udp://HOST:PORT"))?,
+                    sender: args
+                        .sender
+                        .parse()
+                        .with_context(|| format!("--sender: `{}` is not HOST:PORT", args.sender))?,
+                }
+            }
+            (None, Some(path), _) | (None, None, Some(path)) => {
+                StateSource::Replay(load_trajectory(path, args.kernels.as_deref())?)
+            }
+            (None, None, None) => anyhow::bail!(
+                "no state source: give --trajectory or --listen, or set scenario.trajectory in {}",
+                args.facility.display()
+            ),
+        },
+    )
+}
+
+/// The sync port: `--serial`, else the facility file's `sync.port`, else
+/// the simulated one.
+fn sync_port(args: &RunArgs, config: &FacilityConfig) -> Result<Box<dyn SyncPort>> {
+    let choice = args
+        .serial
+        .clone()
+        .or_else(|| config.sync.port.as_ref().map(|p| p.display().to_string()))
+        .unwrap_or_else(|| "sim".into());
+    Ok(match choice.as_str() {
+        // The last exchanges only: a long run must not grow.
+        "sim" => Box::new(SimSync::with_history(64)),
+        "none" => Box::new(NoSync),
+        path => Box::new(SerialPortSync::open(SerialOptions::new(
+            path,
+            config.sync.baud,
+        ))?),
+    })
+}
+
+/// Runs `plan` on the display `--display` names.
+fn run_on_display(
+    args: &RunArgs,
+    plan: RunPlan,
+    sync: &mut dyn SyncPort,
+    stop: Arc<AtomicBool>,
+) -> Result<optistim::facility::log::Summary> {
+    let (w, h) = plan.config.screen_size();
+    Ok(match args.display.as_str() {
+        "sim" => {
+            let keep = if args.dump.is_some() { 120 } else { 1 };
+            let mut display = SimDisplay::new(w, h, keep);
+            let s = driver::run(plan, &mut display, sync, stop)?;
+            if let Some(dir) = &args.dump {
+                let files = display.dump_png(dir)?;
+                tracing::info!("wrote {} frames to {}", files.len(), dir.display());
+            }
+            s
+        }
+        "window" => {
+            let mut display = WindowDisplay::open(&WindowOptions {
+                monitor: plan.config.screen.monitor.clone(),
+                resolution: Some((w, h)),
+                title: "optistim".into(),
+            })?;
+            driver::run(plan, &mut display, sync, stop)?
+        }
+        "sim-facility" => {
+            let path = args
+                .sim_facility
+                .as_ref()
+                .context("--display sim-facility needs --sim-facility FILE")?;
+            let facility = optistim::simfacility::SimFacility::load(path)?;
+            let mut display = optistim::simfacility::RecordingScreen::new(
+                &facility,
+                &args.captures,
+                args.capture_every,
+            )?;
+            let s = driver::run(plan, &mut display, sync, stop)?;
+            let written = display.written.len();
+            tracing::info!(
+                "the simulated camera wrote {written} frames to {}",
+                args.captures.display()
+            );
+            s
+        }
+        other => {
+            anyhow::bail!("--display must be `sim`, `window` or `sim-facility`, not `{other}`")
+        }
+    })
 }
 
 /// `optistim validate amie`.
