@@ -582,66 +582,13 @@ pub fn run(
     } else {
         None
     };
-    let scene = build_scene(&obs, &choice, options, ecl.as_ref())?;
-    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
-    let pixels = PixelGeometry::new(&renderer);
-    let images = render_scene(&scene, &mut renderer, &pixels)?;
-    let pin = &scene.camera.pinhole;
-    let max_dn = scene.camera.max_dn() as f32;
-    let gain = scene.camera.gain as f32;
-    let render = Raster::new(
-        pin.width,
-        pin.height,
-        images.electrons.iter().map(|&e| e * gain).collect(),
-    )?;
-    let above = render.data.iter().filter(|&&v| v >= max_dn).count();
+    let r = render_observation(&obs, &choice, options, ecl.as_ref())?;
+    let m = match_to_image(&obs, &r.dn)?;
+    let shifted = shift_bilinear(&r.dn, m.align.dx, m.align.dy, 0.0);
 
-    // Pass 1: provisional background with a widened predicted disk, align.
-    let (centre, radius) = obs
-        .scene
-        .moon_disk_px()
-        .ok_or_else(|| Error::Other("the Moon is behind the camera".into()))?;
-    let predicted = Disk {
-        cx: centre[0],
-        cy: centre[1],
-        radius,
-    };
-    let params = BackgroundParams::amie();
-    let wide = Disk {
-        radius: radius + DISK_MARGIN_PX,
-        ..predicted
-    };
-    let (clean0, _) = remove_background(&obs.image, wide, &params)?;
-    let window = crop_window(&predicted, render.width, render.height);
-    let a0 = align_in(&render, &clean0, window, (0, 0), MAX_SHIFT_PX)?;
-    // Pass 2: background around the aligned disk, align again (±REFINE px
-    // about the integer shift of pass 1).
-    let disk1 = Disk {
-        cx: predicted.cx + a0.dx,
-        cy: predicted.cy + a0.dy,
-        ..predicted
-    };
-    let (subtracted, bg) = remove_background(&obs.image, disk1, &params)?;
-    let floor = (NOISE_FLOOR_SIGMA * bg.sky_sigma_dn) as f32;
-    let real = Raster::new(
-        subtracted.width,
-        subtracted.height,
-        subtracted
-            .data
-            .iter()
-            .map(|&v| if v < floor { 0.0 } else { v })
-            .collect(),
-    )?;
-    let align = align_in(&render, &real, window, a0.integer_shift, REFINE_PX)?;
-    let aligned_disk = Disk {
-        cx: predicted.cx + align.dx,
-        cy: predicted.cy + align.dy,
-        ..predicted
-    };
-    let shifted = shift_bilinear(&render, align.dx, align.dy, 0.0);
-
-    let real_total = sum_within(&real, &aligned_disk, SIGNAL_MARGIN_PX);
-    let render_total = sum_within(&shifted, &aligned_disk, SIGNAL_MARGIN_PX);
+    let real = &m.real;
+    let real_total = sum_within(real, &m.aligned_disk, SIGNAL_MARGIN_PX);
+    let render_total = sum_within(&shifted, &m.aligned_disk, SIGNAL_MARGIN_PX);
     if render_total <= 0.0 {
         return Err(Error::Other(
             "the render is black over the Moon's disk".into(),
@@ -653,10 +600,12 @@ pub fn run(
         shifted.height,
         shifted.data.iter().map(|&v| v * ratio as f32).collect(),
     )?;
-    let s_norm = ssim(&real, &scaled, AMIE_DATA_RANGE)?;
-    let s_raw = ssim(&real, &shifted, AMIE_DATA_RANGE)?;
-    let s_no_floor = ssim(&subtracted, &scaled, AMIE_DATA_RANGE)?;
+    let s_norm = ssim(real, &scaled, AMIE_DATA_RANGE)?;
+    let s_raw = ssim(real, &shifted, AMIE_DATA_RANGE)?;
+    let s_no_floor = ssim(&m.subtracted, &scaled, AMIE_DATA_RANGE)?;
 
+    let scene = &r.scene;
+    let pin = &scene.camera.pinhole;
     let geometry = obs.scene.geometry_check();
     let phase_derived = geometry
         .phase_at_boresight_deg
@@ -685,18 +634,18 @@ pub fn run(
         phase_error_deg: (phase_derived - obs.scene.label.phase_angle_deg).abs(),
         geometry,
         eclipse: ecl,
-        render: images.summary.clone(),
-        render_pixels_above_saturation: above,
+        render: r.images.summary.clone(),
+        render_pixels_above_saturation: r.above_saturation,
         render_product: "float DN before quantisation and without saturation: electrons x gain (1/280 DN per e-)".into(),
         background_method: "background::remove_background with BackgroundParams::amie() (kappa-sigma-clipped quadratic sky + limb halo rings), \
                             fitted around the NCC-aligned disk; then pixels below 3 sky sigma set to 0 (noise floor)"
             .into(),
-        background_params: params,
-        background: bg,
-        predicted_disk: predicted,
-        aligned_disk,
-        alignment: align,
-        shift_px: align.dx.hypot(align.dy),
+        background_params: m.params,
+        background: m.background,
+        predicted_disk: m.predicted,
+        aligned_disk: m.aligned_disk,
+        alignment: m.align,
+        shift_px: m.align.dx.hypot(m.align.dy),
         real_total_dn: real_total,
         render_total_dn: render_total,
         total_signal_ratio: ratio,
@@ -704,14 +653,121 @@ pub fn run(
         ssim: SsimScores::from(&s_norm),
         ssim_unnormalised: SsimScores::from(&s_raw),
         ssim_without_noise_floor: SsimScores::from(&s_no_floor),
-        noise_floor_dn: floor as f64,
-        ssim_disk: disk_scores(&s_norm, &aligned_disk, SIGNAL_MARGIN_PX),
+        noise_floor_dn: m.floor as f64,
+        ssim_disk: disk_scores(&s_norm, &m.aligned_disk, SIGNAL_MARGIN_PX),
     };
     Ok(ValidationRun {
         report,
-        real,
+        real: m.real,
         render: scaled,
         ssim: s_norm,
+    })
+}
+
+/// The model's render of an AMIE observation, in float DN.
+struct Rendered {
+    scene: Scene,
+    images: crate::render::detector::SceneImages,
+    /// Electrons × gain: DN before quantisation and saturation.
+    dn: Raster,
+    /// Pixels of `dn` at or above the largest DN.
+    above_saturation: usize,
+}
+
+fn render_observation(
+    obs: &AmieObservation,
+    choice: &ModelChoice,
+    options: &ValidationOptions,
+    ecl: Option<&EclipseReport>,
+) -> Result<Rendered> {
+    let scene = build_scene(obs, choice, options, ecl)?;
+    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let pixels = PixelGeometry::new(&renderer);
+    let images = render_scene(&scene, &mut renderer, &pixels)?;
+    let pin = &scene.camera.pinhole;
+    let max_dn = scene.camera.max_dn() as f32;
+    let gain = scene.camera.gain as f32;
+    let dn = Raster::new(
+        pin.width,
+        pin.height,
+        images.electrons.iter().map(|&e| e * gain).collect(),
+    )?;
+    let above_saturation = dn.data.iter().filter(|&&v| v >= max_dn).count();
+    Ok(Rendered {
+        scene,
+        images,
+        dn,
+        above_saturation,
+    })
+}
+
+/// The real image's background removed around the render's disk, and
+/// where the render lands on it.
+struct Matched {
+    params: BackgroundParams,
+    background: BackgroundModel,
+    /// The image with the background removed.
+    subtracted: Raster,
+    /// The same with pixels below the noise floor set to 0.
+    real: Raster,
+    floor: f32,
+    predicted: Disk,
+    aligned_disk: Disk,
+    align: Alignment,
+}
+
+/// Two passes: a provisional background with a widened predicted disk and
+/// an alignment; then the background around the aligned disk and the
+/// alignment again (±REFINE px about pass 1's integer shift).
+fn match_to_image(obs: &AmieObservation, render: &Raster) -> Result<Matched> {
+    let (centre, radius) = obs
+        .scene
+        .moon_disk_px()
+        .ok_or_else(|| Error::Other("the Moon is behind the camera".into()))?;
+    let predicted = Disk {
+        cx: centre[0],
+        cy: centre[1],
+        radius,
+    };
+    let params = BackgroundParams::amie();
+    let wide = Disk {
+        radius: radius + DISK_MARGIN_PX,
+        ..predicted
+    };
+    let (clean0, _) = remove_background(&obs.image, wide, &params)?;
+    let window = crop_window(&predicted, render.width, render.height);
+    let a0 = align_in(render, &clean0, window, (0, 0), MAX_SHIFT_PX)?;
+    let disk1 = Disk {
+        cx: predicted.cx + a0.dx,
+        cy: predicted.cy + a0.dy,
+        ..predicted
+    };
+    let (subtracted, background) = remove_background(&obs.image, disk1, &params)?;
+    let floor = (NOISE_FLOOR_SIGMA * background.sky_sigma_dn) as f32;
+    let real = Raster::new(
+        subtracted.width,
+        subtracted.height,
+        subtracted
+            .data
+            .iter()
+            .map(|&v| if v < floor { 0.0 } else { v })
+            .collect(),
+    )?;
+    let align = align_in(render, &real, window, a0.integer_shift, REFINE_PX)?;
+    let aligned_disk = Disk {
+        cx: predicted.cx + align.dx,
+        cy: predicted.cy + align.dy,
+        ..predicted
+    };
+    Ok(Matched {
+        params,
+        background,
+        subtracted,
+        real,
+        floor,
+        predicted,
+        aligned_disk,
+        align,
     })
 }
 
