@@ -85,6 +85,79 @@ pub fn targets(lut: &DisplayLut, n: usize) -> Vec<f64> {
         .collect()
 }
 
+/// What every measurement of a verification shares.
+struct Session<'s, 'i> {
+    inst: &'s mut Instruments<'i>,
+    setup: &'s VerifySetup<'s>,
+    auto: AutoExposure,
+    /// The camera region measured.
+    rect: Rect,
+}
+
+impl Session<'_, '_> {
+    /// The camera's radiance of the region, for the pattern shown now.
+    fn measure(&mut self, name: &str, level: u32) -> Result<(f64, f64)> {
+        let cfg = self.setup.cfg;
+        (self.inst.wait)(cfg.settle);
+        let r = self.auto.capture(
+            self.inst.camera,
+            name,
+            level,
+            cfg.camera.exposure,
+            self.setup.dark.as_deref(),
+            self.rect,
+        )?;
+        let radiance = r.stats.mean / r.frame.exposure_s * self.setup.camera_scale;
+        Ok((radiance, r.frame.exposure_s))
+    }
+
+    /// One patch: a uniform target radiance through the LUT, flat field and
+    /// dither (`frame` is the screen buffer), against camera and meter.
+    fn patch(
+        &mut self,
+        name: &str,
+        target: f64,
+        conv: &mut Converter,
+        frame: &mut [u32],
+    ) -> Result<Patch> {
+        let (w, h) = self.setup.screen;
+        let image = vec![target as f32; w * h];
+        conv.convert(&image, Roi::full(w, h), 0, frame)?;
+        self.inst.display.present(frame)?;
+        let level = self.setup.lut.inverse(target).round() as u32;
+        let (camera, exposure_s) = self.measure(name, level)?;
+        let meter = read_meter(&mut self.inst.meter, name, level)?
+            .and_then(|m| self.setup.mismatch_factor.map(|f| f * m.value));
+        Ok(Patch {
+            target,
+            camera,
+            camera_error_percent: 100.0 * (camera / target - 1.0),
+            meter,
+            meter_error_percent: meter.map(|m| 100.0 * (m / target - 1.0)),
+            exposure_s,
+        })
+    }
+
+    /// One drive level shown flat, against the LUT's radiance there.
+    fn drift(&mut self, name: &str, level: u32) -> Result<DriftPoint> {
+        show_level(self.inst.display, level, self.setup.lut.bits())?;
+        let (measured, _) = self.measure(name, level)?;
+        let lut = self.setup.lut.radiance(level as f64);
+        if !(lut > 0.0) {
+            return Err(Error::invalid(
+                "calibrate.verify.drift_levels",
+                format!("level {level} has zero radiance in the LUT"),
+            ));
+        }
+        Ok(DriftPoint {
+            level,
+            lut,
+            measured,
+            drift_percent: 100.0 * (measured / lut - 1.0),
+        })
+    }
+}
+
 /// Runs the verification (resuming from `ckpt`).
 pub fn run(
     inst: &mut Instruments,
@@ -92,7 +165,6 @@ pub fn run(
     ckpt: &mut Checkpoint,
 ) -> Result<VerifyReport> {
     let cfg = setup.cfg;
-    let bits = setup.lut.bits();
     let (w, h) = setup.screen;
     let mut conv = Converter::new(
         setup.lut.clone(),
@@ -105,11 +177,15 @@ pub fn run(
         pattern: "verify_probe".into(),
         exposure_s: cfg.camera.exposure,
     })?;
-    let rect = Rect::from_fractions(cfg.region, probe.width, probe.height);
-    let auto = AutoExposure {
-        fill: cfg.target_fill,
-        min: 1e-6_f64.min(cfg.camera.exposure),
-        max: cfg.max_exposure,
+    let mut session = Session {
+        inst,
+        setup,
+        auto: AutoExposure {
+            fill: cfg.target_fill,
+            min: 1e-6_f64.min(cfg.camera.exposure),
+            max: cfg.max_exposure,
+        },
+        rect: Rect::from_fractions(cfg.region, probe.width, probe.height),
     };
     let tl = targets(&setup.lut, cfg.verify.patches);
     let bar = progress((tl.len() + cfg.verify.drift_levels.len()) as u64, "verify");
@@ -120,30 +196,7 @@ pub fn run(
         let p = match ckpt.get::<Patch>(&name)? {
             Some(p) => p,
             None => {
-                let image = vec![target as f32; w * h];
-                conv.convert(&image, Roi::full(w, h), 0, &mut frame)?;
-                inst.display.present(&frame)?;
-                (inst.wait)(cfg.settle);
-                let level = setup.lut.inverse(target).round() as u32;
-                let r = auto.capture(
-                    inst.camera,
-                    &name,
-                    level,
-                    cfg.camera.exposure,
-                    setup.dark.as_deref(),
-                    rect,
-                )?;
-                let camera = r.stats.mean / r.frame.exposure_s * setup.camera_scale;
-                let meter = read_meter(&mut inst.meter, &name, level)?
-                    .and_then(|m| setup.mismatch_factor.map(|f| f * m.value));
-                let p = Patch {
-                    target,
-                    camera,
-                    camera_error_percent: 100.0 * (camera / target - 1.0),
-                    meter,
-                    meter_error_percent: meter.map(|m| 100.0 * (m / target - 1.0)),
-                    exposure_s: r.frame.exposure_s,
-                };
+                let p = session.patch(&name, target, &mut conv, &mut frame)?;
                 ckpt.record(&name, &p)?;
                 p
             }
@@ -161,30 +214,7 @@ pub fn run(
         let d = match ckpt.get::<DriftPoint>(&name)? {
             Some(d) => d,
             None => {
-                show_level(inst.display, level, bits)?;
-                (inst.wait)(cfg.settle);
-                let r = auto.capture(
-                    inst.camera,
-                    &name,
-                    level,
-                    cfg.camera.exposure,
-                    setup.dark.as_deref(),
-                    rect,
-                )?;
-                let measured = r.stats.mean / r.frame.exposure_s * setup.camera_scale;
-                let lut = setup.lut.radiance(level as f64);
-                if !(lut > 0.0) {
-                    return Err(Error::invalid(
-                        "calibrate.verify.drift_levels",
-                        format!("level {level} has zero radiance in the LUT"),
-                    ));
-                }
-                let d = DriftPoint {
-                    level,
-                    lut,
-                    measured,
-                    drift_percent: 100.0 * (measured / lut - 1.0),
-                };
+                let d = session.drift(&name, level)?;
                 ckpt.record(&name, &d)?;
                 d
             }
@@ -193,23 +223,29 @@ pub fn run(
         drift.push(d);
     }
     bar.finish_and_clear();
-    let max_error = patches
-        .iter()
-        .flat_map(|p| std::iter::once(p.camera_error_percent).chain(p.meter_error_percent))
-        .fold(0.0f64, |a, e| a.max(e.abs()));
-    let max_drift = drift
-        .iter()
-        .fold(0.0f64, |a, d| a.max(d.drift_percent.abs()));
-    Ok(VerifyReport {
-        patches,
-        drift,
-        max_error_percent: max_error,
-        threshold_percent: cfg.verify.max_error_percent,
-        max_drift_percent: max_drift,
-        drift_warn_percent: cfg.verify.drift_warn_percent,
-        drift_warning: max_drift > cfg.verify.drift_warn_percent,
-        passed: max_error <= cfg.verify.max_error_percent,
-    })
+    Ok(VerifyReport::new(patches, drift, cfg))
+}
+
+impl VerifyReport {
+    fn new(patches: Vec<Patch>, drift: Vec<DriftPoint>, cfg: &CalibrateConfig) -> Self {
+        let max_error = patches
+            .iter()
+            .flat_map(|p| std::iter::once(p.camera_error_percent).chain(p.meter_error_percent))
+            .fold(0.0f64, |a, e| a.max(e.abs()));
+        let max_drift = drift
+            .iter()
+            .fold(0.0f64, |a, d| a.max(d.drift_percent.abs()));
+        VerifyReport {
+            patches,
+            drift,
+            max_error_percent: max_error,
+            threshold_percent: cfg.verify.max_error_percent,
+            max_drift_percent: max_drift,
+            drift_warn_percent: cfg.verify.drift_warn_percent,
+            drift_warning: max_drift > cfg.verify.drift_warn_percent,
+            passed: max_error <= cfg.verify.max_error_percent,
+        }
+    }
 }
 
 /// A short table of the report for the terminal.
