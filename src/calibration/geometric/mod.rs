@@ -460,13 +460,53 @@ pub fn solve(
         .filter_map(|b| direction(b.centre).map(|t| (b.centre, t)))
         .collect();
     let tans: Vec<[f64; 2]> = seen.iter().map(|s| s.1).collect();
+    let sightings = anchor_sightings(captures, typical, &direction)?;
+    let h = matching::anchor_homography(grid, &sightings, captures.anchors.len(), cfg.gate)?;
+    let screen = grid.screen;
+    let first_guess = Box::new(move |u, v| apply_homography(&h, normalise(screen, u, v)));
+    let settings = FitSettings {
+        clip_sigma: cfg.clip_sigma,
+        // 0.001 camera px.
+        floor: 1e-3 / intrinsics.camera_matrix[0][0].max(intrinsics.camera_matrix[1][1]),
+        correction_degree: cfg.correction_degree,
+    };
+    let too_few = |pairs: usize| {
+        Error::Other(format!(
+            "geometric calibration: too few dots: {pairs} of {} identified, min_dots = {} \
+             ({found} blobs found, {rejected} rejected by size or shape): check the \
+             camera's view of the screen, its focus and exposure",
+            grid.centres.len(),
+            cfg.min_dots
+        ))
+    };
+    let (fit, pairs, iterations) =
+        match_and_fit(grid, &tans, first_guess, cfg, &settings, too_few)?;
+    let dots = residuals(grid, &seen, &fit, &pairs, intrinsics);
+    Ok(Solution {
+        fit,
+        dots,
+        dots_shown: grid.centres.len(),
+        blobs_detected: found,
+        blobs_rejected: rejected,
+        anchors_identified: sightings.len(),
+        anchors_shown: captures.anchors.len(),
+        iterations,
+    })
+}
 
+/// The anchors seen: in each anchor frame, one clear dot (the brightest,
+/// at least twice the next), as a camera direction; frames without one
+/// are not trusted.
+fn anchor_sightings(
+    captures: &Captures,
+    typical: f64,
+    direction: &dyn Fn([f64; 2]) -> Option<[f64; 2]>,
+) -> Result<Vec<AnchorSighting>> {
     let mut sightings = Vec::new();
     for (k, (dot, frame)) in captures.anchors.iter().enumerate() {
         let pattern = anchor_pattern(k);
         let (mut b, _, _, _) = dots_of(frame, &captures.dark, &pattern, Some(typical))?;
         b.sort_by(|x, y| y.flux.total_cmp(&x.flux));
-        // One clear dot, or nothing trusted.
         let clear = match b.as_slice() {
             [] => None,
             [one] => Some(one),
@@ -476,20 +516,26 @@ pub fn solve(
             sightings.push(AnchorSighting { dot: *dot, tan: t });
         }
     }
-    let h = matching::anchor_homography(grid, &sightings, captures.anchors.len(), cfg.gate)?;
-    let screen = grid.screen;
-    let mut predict: Box<dyn Fn(f64, f64) -> [f64; 2]> =
-        Box::new(move |u, v| apply_homography(&h, normalise(screen, u, v)));
+    Ok(sightings)
+}
 
-    let settings = FitSettings {
-        clip_sigma: cfg.clip_sigma,
-        // 0.001 camera px.
-        floor: 1e-3 / intrinsics.camera_matrix[0][0].max(intrinsics.camera_matrix[1][1]),
-        correction_degree: cfg.correction_degree,
-    };
-    // The matched region: a disc about the central anchor, twice the
-    // anchors' extent at first, doubling each round until it holds every
-    // dot; then up to `iterations` rounds until the matches are stable.
+/// A fit, its (dot, detection) pairs and the rounds it took.
+type Rounds = (Fit, Vec<(usize, usize)>, usize);
+
+/// Predict, match and fit in rounds over a growing region: a disc about
+/// the central anchor, twice the anchors' extent at first, doubling each
+/// round until it holds every dot; then up to `iterations` rounds until
+/// the matches are stable. Fewer than `min_dots` pairs with every dot in
+/// the region is the error `too_few` makes of their count.
+fn match_and_fit(
+    grid: &DotGrid,
+    tans: &[[f64; 2]],
+    first_guess: Box<dyn Fn(f64, f64) -> [f64; 2]>,
+    cfg: &GeometricConfig,
+    settings: &FitSettings,
+    too_few: impl Fn(usize) -> Error,
+) -> Result<Rounds> {
+    let mut predict = first_guess;
     let centre = grid.centres[grid.anchors()[grid.anchors().len() / 2]];
     let dist = |c: &[f64; 2]| (c[0] - centre[0]).hypot(c[1] - centre[1]);
     let full = grid.centres.iter().map(dist).fold(0.0, f64::max);
@@ -502,7 +548,7 @@ pub fn solve(
         let covered = radius >= full;
         let active: Vec<bool> = grid.centres.iter().map(|c| dist(c) <= radius).collect();
         radius *= 2.0;
-        let matches = matching::match_dots(grid, &predict, &tans, cfg.gate, &active);
+        let matches = matching::match_dots(grid, &predict, tans, cfg.gate, &active);
         let pairs: Vec<(usize, usize)> = matches
             .iter()
             .enumerate()
@@ -512,18 +558,11 @@ pub fn solve(
             if !covered {
                 continue;
             }
-            return Err(Error::Other(format!(
-                "geometric calibration: too few dots: {} of {} identified, min_dots = {} \
-                 ({found} blobs found, {rejected} rejected by size or shape): check the \
-                 camera's view of the screen, its focus and exposure",
-                pairs.len(),
-                grid.centres.len(),
-                cfg.min_dots
-            )));
+            return Err(too_few(pairs.len()));
         }
         let uv: Vec<[f64; 2]> = pairs.iter().map(|&(d, _)| grid.centres[d]).collect();
         let tan: Vec<[f64; 2]> = pairs.iter().map(|&(_, k)| tans[k]).collect();
-        let f = fit::fit(screen, &uv, &tan, &settings)?;
+        let f = fit::fit(grid.screen, &uv, &tan, settings)?;
         let model = f.model.clone();
         predict = Box::new(move |u, v| model.direction(u, v));
         let stable = covered && previous.as_ref() == Some(&matches);
@@ -537,7 +576,19 @@ pub fn solve(
         }
     }
     let (fit, pairs) = result.expect("at least one round");
-    let dots = pairs
+    Ok((fit, pairs, rounds))
+}
+
+/// Each identified dot against the fitted model: where the camera saw it
+/// and where the model puts it, in camera pixels and arcseconds.
+fn residuals(
+    grid: &DotGrid,
+    seen: &[([f64; 2], [f64; 2])],
+    fit: &Fit,
+    pairs: &[(usize, usize)],
+    intrinsics: &CameraIntrinsics,
+) -> Vec<DotResidual> {
+    pairs
         .iter()
         .enumerate()
         .map(|(i, &(dot, k))| {
@@ -558,17 +609,7 @@ pub fn solve(
                 used: fit.inlier[i],
             }
         })
-        .collect();
-    Ok(Solution {
-        fit,
-        dots,
-        dots_shown: grid.centres.len(),
-        blobs_detected: found,
-        blobs_rejected: rejected,
-        anchors_identified: sightings.len(),
-        anchors_shown: captures.anchors.len(),
-        iterations: rounds,
-    })
+        .collect()
 }
 
 /// What [`calibrate_geometric`] did and measured (also its JSON report).
