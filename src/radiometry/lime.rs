@@ -245,7 +245,8 @@ impl Lime {
     }
 
     /// The render's disk irradiance `rendered` [W m⁻²] over `band` against
-    /// LIME's at `geo`; None where LIME's is not positive and finite.
+    /// LIME's at `geo`; None where LIME's is not positive and finite, or
+    /// the ratio is not finite.
     pub fn compare(
         &self,
         band: &LimeBand,
@@ -253,12 +254,13 @@ impl Lime {
         rendered: f64,
     ) -> Option<LimeComparison> {
         let lime = self.disk_irradiance(band, &geo);
-        if !(lime > 0.0 && lime.is_finite()) {
+        let ratio = rendered / lime;
+        if !(lime > 0.0 && lime.is_finite() && ratio.is_finite()) {
             return None;
         }
         Some(LimeComparison {
             disk_irradiance_w_m2: lime,
-            render_over_lime: rendered / lime,
+            render_over_lime: ratio,
             geometry: geo,
             extrapolated: geo.extrapolations([band.band[0] * 1e9, band.band[1] * 1e9]),
         })
