@@ -52,8 +52,11 @@ pub fn render(scene_path: &Path, out: &Path, caps_per_pixel: Option<f64>) -> Res
             [] => String::new(),
             why => format!(" (LIME extrapolated: {})", why.join("; ")),
         };
+        let camera = lime.effective_render_over_lime.map_or(String::new(), |r| {
+            format!(", in the camera's electrons {:+.2} %", 100.0 * (r - 1.0))
+        });
         tracing::info!(
-            "disk irradiance {:.6e} W m-2 against LIME's {:.6e}: render/LIME - 1 = {:+.2} %{caveat}",
+            "disk irradiance {:.6e} W m-2 against LIME's {:.6e}: render/LIME - 1 = {:+.2} %{camera}{caveat}",
             s.irradiance_all_caps_w_m2,
             lime.disk_irradiance_w_m2,
             100.0 * (lime.render_over_lime - 1.0)

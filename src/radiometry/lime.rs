@@ -138,6 +138,14 @@ pub struct LimeComparison {
     pub disk_irradiance_w_m2: f64,
     /// The render's (`irradiance_all_caps_w_m2`) over LIME's.
     pub render_over_lime: f64,
+    /// LIME's camera-effective disk irradiance [W m⁻²]: the in-band
+    /// irradiance of a solar-spectrum source that gives the camera the
+    /// electrons LIME's Moon would ([`Lime::camera_band`]); None without a
+    /// camera response in the band.
+    pub effective_disk_irradiance_w_m2: Option<f64>,
+    /// The render's (`effective_irradiance_all_caps_w_m2`) over it: the
+    /// error in the camera's own electrons.
+    pub effective_render_over_lime: Option<f64>,
     /// The geometry LIME was evaluated at.
     #[serde(flatten)]
     pub geometry: LunarGeometry,
@@ -219,16 +227,57 @@ impl Lime {
     /// ∫ A E☉ dλ = Σ_k (A_k / C(λ_k)) W_k at any geometry. None where the
     /// band leaves the composite spectrum (350–2550 nm).
     pub fn band(&self, sun: &SolarSpectrum, band: [f64; 2]) -> Option<LimeBand> {
+        self.weighted_band(sun, band, |_| 1.0)
+    }
+
+    /// [`Lime::band`] as a camera sees it: each W_k weighted by the camera's
+    /// electron response R(λ) (QE T λ/(hc)) and scaled by ∫E☉ / ∫E☉R over
+    /// the band, so that [`Lime::disk_irradiance`] gives LIME's
+    /// camera-effective irradiance: the in-band irradiance of a
+    /// solar-spectrum source that gives the camera the same electrons
+    /// (what `effective_irradiance_*` are for a render). None also where
+    /// the camera has no response in the band.
+    pub fn camera_band(
+        &self,
+        sun: &SolarSpectrum,
+        band: [f64; 2],
+        response: impl Fn(f64) -> f64,
+    ) -> Option<LimeBand> {
+        let mut weighted = self.weighted_band(sun, band, &response)?;
+        let knots = self.knots();
+        let solar = integrate(band[0], band[1], &knots, |l| sun.eval(l));
+        let electrons = integrate(band[0], band[1], &knots, |l| sun.eval(l) * response(l));
+        let scale = solar / electrons;
+        if !(electrons > 0.0 && scale.is_finite()) {
+            return None;
+        }
+        weighted.weights = weighted.weights.map(|w| w * scale);
+        Some(weighted)
+    }
+
+    /// The composite spectrum's knots and the band centres [m], sorted.
+    fn knots(&self) -> Vec<f64> {
+        let mut knots: Vec<f64> = self.composite.wavelengths.clone();
+        knots.extend(BANDS_NM.map(|nm| nm * 1e-9));
+        knots.sort_by(f64::total_cmp);
+        knots
+    }
+
+    /// W_k = ∫ C h_k E☉ `weight` dλ over `band`.
+    fn weighted_band(
+        &self,
+        sun: &SolarSpectrum,
+        band: [f64; 2],
+        weight: impl Fn(f64) -> f64,
+    ) -> Option<LimeBand> {
         let table = &self.composite.wavelengths;
         if !(band[0] >= table[0] && band[1] <= table[table.len() - 1] && band[1] > band[0]) {
             return None;
         }
-        let mut knots: Vec<f64> = table.clone();
-        knots.extend(BANDS_NM.map(|nm| nm * 1e-9));
-        knots.sort_by(f64::total_cmp);
+        let knots = self.knots();
         let weights = std::array::from_fn(|k| {
             integrate(band[0], band[1], &knots, |l| {
-                self.composite.eval(l) * band_weights(l)[k] * sun.eval(l)
+                self.composite.eval(l) * band_weights(l)[k] * sun.eval(l) * weight(l)
             })
         });
         Some(LimeBand { band, weights })
@@ -244,23 +293,29 @@ impl Lime {
             * (REFERENCE_DISTANCE / geo.observer_distance_m).powi(2)
     }
 
-    /// The render's disk irradiance `rendered` [W m⁻²] over `band` against
-    /// LIME's at `geo`; None where LIME's is not positive and finite, or
-    /// the ratio is not finite.
+    /// The render's disk irradiance against LIME's at `geo`: `rendered`
+    /// [W m⁻²] over `band`, and `effective` (the camera-effective one) over
+    /// `camera` ([`Lime::camera_band`]). None where LIME's is not positive
+    /// and finite, or the ratio is not finite.
     pub fn compare(
         &self,
         band: &LimeBand,
+        camera: Option<(&LimeBand, f64)>,
         geo: LunarGeometry,
         rendered: f64,
     ) -> Option<LimeComparison> {
-        let lime = self.disk_irradiance(band, &geo);
-        let ratio = rendered / lime;
-        if !(lime > 0.0 && lime.is_finite() && ratio.is_finite()) {
-            return None;
-        }
+        let ratio_to = |lime: f64, render: f64| {
+            let ratio = render / lime;
+            (lime > 0.0 && lime.is_finite() && ratio.is_finite()).then_some((lime, ratio))
+        };
+        let (lime, ratio) = ratio_to(self.disk_irradiance(band, &geo), rendered)?;
+        let effective =
+            camera.and_then(|(b, effective)| ratio_to(self.disk_irradiance(b, &geo), effective));
         Some(LimeComparison {
             disk_irradiance_w_m2: lime,
             render_over_lime: ratio,
+            effective_disk_irradiance_w_m2: effective.map(|e| e.0),
+            effective_render_over_lime: effective.map(|e| e.1),
             geometry: geo,
             extrapolated: geo.extrapolations([band.band[0] * 1e9, band.band[1] * 1e9]),
         })

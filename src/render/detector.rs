@@ -15,7 +15,9 @@ use super::{line_of_sight, BandModel, RenderStats, Renderer};
 use crate::error::{Error, Result};
 use crate::radiometry::lime::{Lime, LimeComparison, LunarGeometry};
 use crate::radiometry::reflectance::Reflectance;
-use crate::radiometry::spectrum::{band_integrals, response_integral, BandIntegral};
+use crate::radiometry::spectrum::{
+    band_integrals, response_integral, BandIntegral, LIGHT_SPEED, PLANCK,
+};
 use crate::scene::{Body, Scene};
 
 /// Images and figures of one rendered scene.
@@ -46,6 +48,9 @@ pub struct Summary {
     /// Same, summed over all caps including those outside the image
     /// [W m⁻²].
     pub irradiance_all_caps_w_m2: f64,
+    /// The camera-effective irradiance (below) over all caps, including
+    /// those outside the image [W m⁻²].
+    pub effective_irradiance_all_caps_w_m2: f64,
     /// Σ L_eff Ω cos θ over the image with the camera-effective radiance:
     /// the in-band irradiance of a solar-spectrum source giving the camera
     /// the same electron rate [W m⁻²].
@@ -157,6 +162,7 @@ pub fn render_scene(
         0.0
     };
     let d = detect(scene, pixels, &spectral, to_effective);
+    let effective_all_caps = spectral.all_caps_electrons * to_effective;
     let range = (scene.state.camera_position - scene.state.body_position).length();
     let apparent = (scene.body.radius / range).asin();
     let response = response_integral(&cam.quantum_efficiency, &cam.transmission, cam.band);
@@ -174,6 +180,7 @@ pub fn render_scene(
             phase_angle_deg: spectral.stats.phase_angle.to_degrees(),
             irradiance_at_pupil_w_m2: d.irradiance,
             irradiance_all_caps_w_m2: spectral.all_caps,
+            effective_irradiance_all_caps_w_m2: effective_all_caps,
             effective_irradiance_at_pupil_w_m2: d.effective_irradiance,
             response_weighted_irradiance_w_m2_nm: response_weighted,
             total_electrons: d.total_electrons,
@@ -185,7 +192,7 @@ pub fn render_scene(
             band_irradiance_1au_w_m2: band_irradiance,
             apparent_radius_deg: apparent.to_degrees(),
             apparent_radius_px: apparent.tan() * pin.fx,
-            lime: lime_comparison(scene, spectral.all_caps),
+            lime: lime_comparison(scene, spectral.all_caps, effective_all_caps),
         },
     };
     images.check_finite()?;
@@ -200,6 +207,8 @@ struct Spectral {
     electron_rate: Vec<f32>,
     /// Σ over every cap (also outside the image) [W m⁻²].
     all_caps: f64,
+    /// The same in electrons [e⁻ s⁻¹ m⁻²].
+    all_caps_electrons: f64,
     /// The last sub-band's statistics (phase, caps).
     stats: RenderStats,
 }
@@ -218,6 +227,7 @@ fn render_bands(
         radiance: vec![0.0f32; n],
         electron_rate: vec![0.0f32; n],
         all_caps: 0.0,
+        all_caps_electrons: 0.0,
         stats: RenderStats::default(),
     };
     for band in bands {
@@ -226,6 +236,7 @@ fn render_bands(
         out.stats =
             renderer.render_flux_band(&scene.body, &scene.state, &scene.render, &band_model);
         out.all_caps += out.stats.total_flux * band.irradiance_1au;
+        out.all_caps_electrons += out.stats.total_flux * band.electron_rate_1au;
         let flux = renderer.flux();
         let roi = out.stats.roi;
         for row in roi.y0..roi.y1 {
@@ -318,7 +329,11 @@ fn detect(
 /// The render's disk irradiance against LIME, for a body that stands for
 /// the Moon (`[body] lime_reference`); None otherwise or where LIME cannot
 /// be evaluated (a band beyond its composite spectrum).
-fn lime_comparison(scene: &Scene, all_caps: f64) -> Option<LimeComparison> {
+fn lime_comparison(
+    scene: &Scene,
+    all_caps: f64,
+    effective_all_caps: f64,
+) -> Option<LimeComparison> {
     if !scene.body.lime_reference {
         return None;
     }
@@ -329,8 +344,13 @@ fn lime_comparison(scene: &Scene, all_caps: f64) -> Option<LimeComparison> {
         to_body * (s.sun_position - s.body_position),
     )?;
     let lime = Lime::embedded();
-    let band = lime.band(&scene.sun, scene.camera.band)?;
-    let mut comparison = lime.compare(&band, geometry, all_caps)?;
+    let cam = &scene.camera;
+    let band = lime.band(&scene.sun, cam.band)?;
+    let camera_band = lime.camera_band(&scene.sun, cam.band, |l| {
+        cam.quantum_efficiency.eval(l) * cam.transmission.eval(l) * l / (PLANCK * LIGHT_SPEED)
+    });
+    let camera = camera_band.as_ref().map(|b| (b, effective_all_caps));
+    let mut comparison = lime.compare(&band, camera, geometry, all_caps)?;
     if s.occulter.is_some() {
         comparison
             .extrapolated
@@ -347,6 +367,10 @@ impl SceneImages {
         let scalars = [
             ("irradiance_at_pupil_w_m2", s.irradiance_at_pupil_w_m2),
             ("irradiance_all_caps_w_m2", s.irradiance_all_caps_w_m2),
+            (
+                "effective_irradiance_all_caps_w_m2",
+                s.effective_irradiance_all_caps_w_m2,
+            ),
             (
                 "effective_irradiance_at_pupil_w_m2",
                 s.effective_irradiance_at_pupil_w_m2,
