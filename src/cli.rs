@@ -214,6 +214,13 @@ pub fn run(args: &RunArgs) -> Result<()> {
         ms(lat.p99),
         ms(lat.max)
     );
+    if let Some([lo, hi]) = summary.render_over_lime_range {
+        println!(
+            "render/LIME - 1 (camera electrons, per frame): {:+.2} % to {:+.2} %",
+            100.0 * (lo - 1.0),
+            100.0 * (hi - 1.0)
+        );
+    }
     println!(
         "log: {}  summary: {}",
         args.log.display(),

@@ -934,6 +934,68 @@ fn cli_runs_the_bundled_facility() {
     assert!(records.iter().all(|r| r.lut_sha256 == lut_sha));
     let s: Summary = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
     assert_eq!(s.frames, 3);
+    // Every frame carries its error against LIME (the bundled Moon is a
+    // `lime_reference` body); the summary gives their range.
+    let ratios: Vec<f64> = records
+        .iter()
+        .map(|r| r.render_over_lime.unwrap())
+        .collect();
+    let lo = ratios.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = ratios.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    assert_eq!(s.render_over_lime_range, Some([lo, hi]));
+}
+
+/// The bundled facility's per-frame error against LIME, in the flight
+/// camera's electrons, is what `optistim render` reports for the frame's
+/// state (its summary is tested against LIME written in
+/// tests/moon_lime.rs), when both split the band into sub-bands
+/// (`drive.sub_bands = 16` here; with the default 1 the facility renders
+/// once at the band's electron-weighted wavelength, which moves this Moon
+/// by 0.7 % over 450–820 nm: the logged error includes that).
+#[test]
+fn frames_report_the_renders_error_against_lime() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut config = FacilityConfig::load(root.join("configs/facility.toml")).unwrap();
+    config.drive.sub_bands = 16;
+    let mut scene = Scene::from_file(&root.join("configs/moon.toml")).unwrap();
+    let trajectory = Trajectory::load(root.join("configs/moon_approach.csv")).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let (w, h) = config.screen_size();
+    let plan = RunPlan {
+        config,
+        scene: scene.clone(),
+        source: StateSource::Replay(trajectory.clone()),
+        frames: Some(3),
+        log: tmp.path().join("f.jsonl"),
+        summary: tmp.path().join("s.json"),
+    };
+    let mut display = SimDisplay::new(w, h, 1);
+    let mut sync = SimSync::new();
+    driver::run(plan, &mut display, &mut sync, no_stop()).unwrap();
+    let records = read_records(tmp.path().join("f.jsonl")).unwrap();
+    assert_eq!(records.len(), 3);
+    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let pixels = PixelGeometry::new(&renderer);
+    for r in &records {
+        let logged = r.render_over_lime.expect("the bundled Moon reports LIME");
+        let t = &trajectory.states[r.frame as usize];
+        scene.state.camera_position = t.camera_position;
+        scene.state.camera_attitude = t.camera_attitude;
+        scene.state.sun_position = t.sun_position;
+        let s = render_scene(&scene, &mut renderer, &pixels)
+            .unwrap()
+            .summary;
+        let rendered = s.lime.unwrap().effective_render_over_lime.unwrap();
+        assert!(
+            (logged / rendered - 1.0).abs() < 1e-3,
+            "frame {}: logged {logged}, render {rendered}",
+            r.frame
+        );
+        eprintln!(
+            "frame {}: logged {logged:.5}, render {rendered:.5}",
+            r.frame
+        );
+    }
 }
 
 #[test]

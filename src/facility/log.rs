@@ -87,6 +87,12 @@ pub struct FrameRecord {
     /// The safe (black) frame was shown: no current state.
     #[serde(default)]
     pub safe_frame: bool,
+    /// For a body marked `lime_reference`: the frame's camera-effective
+    /// disk irradiance over LIME's at the same geometry (the render's
+    /// radiometric error against the real Moon, in the flight camera's
+    /// electrons); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub render_over_lime: Option<f64>,
 }
 
 /// A number, or `null` (how serde_json writes a non-finite `f64`) read
@@ -245,6 +251,10 @@ pub struct Summary {
     /// does not tell.
     #[serde(default)]
     pub udp_kernel_drops: Option<u64>,
+    /// Smallest and largest `render_over_lime` of the run's frames; None
+    /// when no frame had one.
+    #[serde(default)]
+    pub render_over_lime_range: Option<[f64; 2]>,
 }
 
 /// True when `file` is non-empty and its last byte is not a newline.
@@ -274,6 +284,7 @@ pub struct FrameLog {
     safe_frames: u64,
     sync_not_sent: u64,
     udp_kernel_drops: Option<u64>,
+    lime_range: Option<[f64; 2]>,
 }
 
 impl FrameLog {
@@ -311,6 +322,7 @@ impl FrameLog {
             safe_frames: 0,
             sync_not_sent: 0,
             udp_kernel_drops: None,
+            lime_range: None,
         })
     }
 
@@ -351,6 +363,11 @@ impl FrameLog {
         self.frames += 1;
         self.missed += u64::from(rec.missed);
         self.safe_frames += u64::from(rec.safe_frame);
+        if let Some(r) = rec.render_over_lime {
+            let [lo, hi] = self.lime_range.get_or_insert([r, r]);
+            *lo = lo.min(r);
+            *hi = hi.max(r);
+        }
         if let Some(r) = rec.t_state_received {
             self.latencies.add(rec.t_presented - r);
         }
@@ -389,6 +406,7 @@ impl FrameLog {
             safe_frames: self.safe_frames,
             sync_not_sent: self.sync_not_sent,
             udp_kernel_drops: self.udp_kernel_drops,
+            render_over_lime_range: self.lime_range,
         }
     }
 

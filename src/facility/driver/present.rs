@@ -185,6 +185,7 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
             calibration_sha256: self.stamps.flat_sha256.clone(),
             geometry_sha256: self.stamps.geometry_sha256.clone(),
             safe_frame: job.safe,
+            render_over_lime: job.render_over_lime,
         }
     }
 }

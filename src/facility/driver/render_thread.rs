@@ -34,6 +34,8 @@ pub(super) struct Job {
     pub clipped: u64,
     pub peak: f64,
     pub safe: bool,
+    /// The render's error against LIME (a `lime_reference` body).
+    pub render_over_lime: Option<f64>,
 }
 
 /// Shared by the two threads for late latching: the next free slot with
@@ -201,11 +203,10 @@ impl RenderThread {
             };
             let entry = drawn.clear(&mut buffer, self.model.screen.0, black);
             self.converter.forget_previous_roi();
-            let roi = state.as_ref().and_then(|s| {
-                self.model
-                    .render(&self.scene, &scene_state(s, &self.scene.state))
-            });
+            let shown = state.as_ref().map(|s| scene_state(s, &self.scene.state));
+            let roi = shown.and_then(|st| self.model.render(&self.scene, &st));
             let render_end = Instant::now();
+            let render_over_lime = shown.and_then(|st| self.model.render_over_lime(&st));
             let (clipped, peak) = self.convert(roi, frame, &mut buffer, &mut warned_peak)?;
             drawn.remember(entry, roi);
             if state.is_none() {
@@ -231,6 +232,7 @@ impl RenderThread {
                 clipped,
                 peak,
                 safe: state.is_none(),
+                render_over_lime,
             };
             if self.ready.send(job).is_err() {
                 break;

@@ -7,8 +7,9 @@ use glam::DQuat;
 use crate::facility::config::FacilityConfig;
 use crate::facility::dither::Roi;
 use crate::facility::geometry::{GeometryCalibration, PreWarp};
+use crate::radiometry::lime::{Lime, LimeBand, LunarGeometry};
 use crate::radiometry::reflectance::Reflectance;
-use crate::radiometry::spectrum::band_integrals;
+use crate::radiometry::spectrum::{band_integrals, LIGHT_SPEED, PLANCK};
 use crate::render::detector::band_model;
 use crate::render::{BandModel, Renderer};
 use crate::scene::{Pinhole, Scene, State};
@@ -34,6 +35,12 @@ pub struct ScreenModel {
     /// ideal grid of the pre-warp, or a grid of blocks.
     ideal_target: Vec<f32>,
     pub(super) roi_target: Vec<f32>,
+    /// LIME's band in the flight camera's response, for a body marked
+    /// `lime_reference`.
+    lime: Option<LimeBand>,
+    /// Camera-effective disk irradiance of the last render, over all caps
+    /// [W m⁻²].
+    effective_all_caps: f64,
 }
 
 /// One render of a frame: the body's model in a part of the camera's band,
@@ -93,6 +100,14 @@ fn screen_bands(scene: &Scene, sub_bands: usize) -> Vec<ScreenBand> {
         .filter(|p| p.electron_rate_1au > 0.0)
         .map(|p| band(p.centroid, e_band * p.electron_rate_1au / electrons))
         .collect()
+}
+
+/// LIME's band as the flight camera sees it (its QE × T electron response).
+fn lime_band(scene: &Scene) -> Option<LimeBand> {
+    let cam = &scene.camera;
+    Lime::embedded().camera_band(&scene.sun, cam.band, |l| {
+        cam.quantum_efficiency.eval(l) * cam.transmission.eval(l) * l / (PLANCK * LIGHT_SPEED)
+    })
 }
 
 /// The camera's electron-weighted mean wavelength over its band [m]: where
@@ -208,6 +223,12 @@ impl ScreenModel {
             warp,
             ideal_target: Vec::new(),
             roi_target: Vec::new(),
+            lime: scene
+                .body
+                .lime_reference
+                .then(|| lime_band(scene))
+                .flatten(),
+            effective_all_caps: 0.0,
         }
     }
 
@@ -277,6 +298,7 @@ impl ScreenModel {
         let w = self.renderer.camera().width;
         let mut roi = None;
         self.accumulated.clear();
+        self.effective_all_caps = 0.0;
         for (i, b) in self.bands.iter().enumerate() {
             let band = BandModel {
                 model: Some(&b.model),
@@ -287,6 +309,7 @@ impl ScreenModel {
                 .renderer
                 .render_flux_band(&scene.body, st, &scene.render, &band);
             let r = *roi.get_or_insert(stats.roi);
+            self.effective_all_caps += b.weight * stats.total_flux;
             if self.bands.len() == 1 {
                 break;
             }
@@ -301,6 +324,21 @@ impl ScreenModel {
             }
         }
         roi.expect("at least one band")
+    }
+
+    /// The last [`render`](Self::render)'s camera-effective disk irradiance
+    /// over LIME's at `state` (the state it rendered), for a body marked
+    /// `lime_reference`; None otherwise or where it is not finite.
+    pub fn render_over_lime(&self, state: &State) -> Option<f64> {
+        let band = self.lime.as_ref()?;
+        let to_body = state.body_attitude.inverse();
+        let geometry = LunarGeometry::from_moon_fixed(
+            to_body * (state.camera_position - state.body_position),
+            to_body * (state.sun_position - state.body_position),
+        )?;
+        let lime = Lime::embedded().disk_irradiance(band, &geometry);
+        let ratio = self.effective_all_caps / lime;
+        (lime > 0.0 && ratio.is_finite()).then_some(ratio)
     }
 
     /// Screen radiance of the last [`render`](Self::render), row-major over
