@@ -14,7 +14,7 @@
 //! exact).
 
 use crate::error::{Error, Result};
-use crate::radiometry::spectrum::{Response, SolarSpectrum, Table, LIGHT_SPEED, PLANCK};
+use crate::radiometry::spectrum::{electron_response, Response, SolarSpectrum, Table};
 use crate::scene::Scene;
 
 /// Integration step, nm.
@@ -77,8 +77,7 @@ impl CameraSpectral {
         if nm < self.band_nm[0] || nm > self.band_nm[1] {
             return 0.0;
         }
-        let m = nm * 1e-9;
-        self.qe.eval(m) * self.transmission.eval(m) * m / (PLANCK * LIGHT_SPEED)
+        electron_response(&self.qe, &self.transmission, nm * 1e-9)
     }
 
     /// ∫_band E☉ / ∫ E☉ R: turns an electron-weighted integral into the band
@@ -138,6 +137,7 @@ pub fn table_spectrum(t: &Table) -> Vec<(f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::radiometry::spectrum::{LIGHT_SPEED, PLANCK};
 
     fn flat_camera(band: [f64; 2]) -> CameraSpectral {
         CameraSpectral {

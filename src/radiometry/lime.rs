@@ -62,6 +62,9 @@ impl Coefficients {
 pub struct Lime {
     bands: [Coefficients; 6],
     composite: Table,
+    /// The composite spectrum at the band centres (looked up once: the
+    /// facility evaluates LIME every frame).
+    composite_at_bands: [f64; 6],
 }
 
 /// The geometry LIME takes, from the Moon's centre in Moon-fixed
@@ -189,7 +192,12 @@ impl Lime {
             return Err(Error::parse(path, format!("no row `{}`", NAMES[k])));
         }
         let composite = Table::from_csv_bytes(composite, Path::new(COMPOSITE_CSV))?;
-        Ok(Lime { bands, composite })
+        let composite_at_bands = BANDS_NM.map(|nm| composite.eval(nm * 1e-9));
+        Ok(Lime {
+            bands,
+            composite,
+            composite_at_bands,
+        })
     }
 
     /// Disk reflectance A in LIME band `k` ([`BANDS_NM`]).
@@ -216,9 +224,7 @@ impl Lime {
 
     /// Each band's reflectance over the composite spectrum there.
     fn ratios(&self, geo: &LunarGeometry) -> [f64; 6] {
-        std::array::from_fn(|k| {
-            self.band_reflectance(k, geo) / self.composite.eval(BANDS_NM[k] * 1e-9)
-        })
+        std::array::from_fn(|k| self.band_reflectance(k, geo) / self.composite_at_bands[k])
     }
 
     /// What LIME needs of a band and a solar spectrum, computed once:

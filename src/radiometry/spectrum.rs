@@ -160,8 +160,14 @@ pub fn response_integral(qe: &Response, transmission: &Response, band: [f64; 2])
         .collect();
     knots.sort_by(f64::total_cmp);
     integrate(band[0], band[1], &knots, |l| {
-        qe.eval(l) * transmission.eval(l) * l / (PLANCK * LIGHT_SPEED)
+        electron_response(qe, transmission, l)
     })
+}
+
+/// A camera's electrons per joule of light at `wavelength` [m]:
+/// QE T λ/(hc).
+pub fn electron_response(qe: &Response, transmission: &Response, wavelength: f64) -> f64 {
+    qe.eval(wavelength) * transmission.eval(wavelength) * wavelength / (PLANCK * LIGHT_SPEED)
 }
 
 /// Solar spectral irradiance at 1 au [W m⁻² m⁻¹].
@@ -300,7 +306,7 @@ pub fn band_integrals(
             let irradiance = integrate(lo, hi, &knots, |l| sun.eval(l));
             let weighted = integrate(lo, hi, &knots, |l| l * sun.eval(l));
             let electrons = integrate(lo, hi, &knots, |l| {
-                qe.eval(l) * transmission.eval(l) * l / (PLANCK * LIGHT_SPEED) * sun.eval(l)
+                electron_response(qe, transmission, l) * sun.eval(l)
             });
             BandIntegral {
                 band: [lo, hi],

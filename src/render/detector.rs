@@ -13,12 +13,12 @@ use serde::Serialize;
 
 use super::{line_of_sight, BandModel, RenderStats, Renderer};
 use crate::error::{Error, Result};
-use crate::radiometry::lime::{Lime, LimeComparison, LunarGeometry};
+use crate::radiometry::lime::{Lime, LimeBand, LimeComparison, LunarGeometry};
 use crate::radiometry::reflectance::Reflectance;
 use crate::radiometry::spectrum::{
-    band_integrals, response_integral, BandIntegral, LIGHT_SPEED, PLANCK,
+    band_integrals, electron_response, response_integral, BandIntegral,
 };
-use crate::scene::{Body, Scene};
+use crate::scene::{Body, Scene, State};
 
 /// Images and figures of one rendered scene.
 #[derive(Clone, Debug)]
@@ -338,17 +338,10 @@ fn lime_comparison(
         return None;
     }
     let s = &scene.state;
-    let to_body = s.body_attitude.inverse();
-    let geometry = LunarGeometry::from_moon_fixed(
-        to_body * (s.camera_position - s.body_position),
-        to_body * (s.sun_position - s.body_position),
-    )?;
+    let geometry = lunar_geometry(s)?;
     let lime = Lime::embedded();
-    let cam = &scene.camera;
-    let band = lime.band(&scene.sun, cam.band)?;
-    let camera_band = lime.camera_band(&scene.sun, cam.band, |l| {
-        cam.quantum_efficiency.eval(l) * cam.transmission.eval(l) * l / (PLANCK * LIGHT_SPEED)
-    });
+    let band = lime.band(&scene.sun, scene.camera.band)?;
+    let camera_band = lime_camera_band(scene);
     let camera = camera_band.as_ref().map(|b| (b, effective_all_caps));
     let mut comparison = lime.compare(&band, camera, geometry, all_caps)?;
     if s.occulter.is_some() {
@@ -357,6 +350,25 @@ fn lime_comparison(
             .push("an occulter (eclipse) is in the scene; LIME has none".into());
     }
     Some(comparison)
+}
+
+/// LIME's geometry for `state`: the camera and the Sun in the body's
+/// (Moon-fixed) frame.
+pub fn lunar_geometry(state: &State) -> Option<LunarGeometry> {
+    let to_body = state.body_attitude.inverse();
+    LunarGeometry::from_moon_fixed(
+        to_body * (state.camera_position - state.body_position),
+        to_body * (state.sun_position - state.body_position),
+    )
+}
+
+/// LIME's band as the scene's camera sees it (its QE × T electron
+/// response), for camera-effective comparisons.
+pub fn lime_camera_band(scene: &Scene) -> Option<LimeBand> {
+    let cam = &scene.camera;
+    Lime::embedded().camera_band(&scene.sun, cam.band, |l| {
+        electron_response(&cam.quantum_efficiency, &cam.transmission, l)
+    })
 }
 
 impl SceneImages {

@@ -7,10 +7,10 @@ use glam::DQuat;
 use crate::facility::config::FacilityConfig;
 use crate::facility::dither::Roi;
 use crate::facility::geometry::{GeometryCalibration, PreWarp};
-use crate::radiometry::lime::{Lime, LimeBand, LunarGeometry};
+use crate::radiometry::lime::{Lime, LimeBand};
 use crate::radiometry::reflectance::Reflectance;
-use crate::radiometry::spectrum::{band_integrals, LIGHT_SPEED, PLANCK};
-use crate::render::detector::band_model;
+use crate::radiometry::spectrum::band_integrals;
+use crate::render::detector::{band_model, lime_camera_band, lunar_geometry};
 use crate::render::{BandModel, Renderer};
 use crate::scene::{Pinhole, Scene, State};
 
@@ -100,14 +100,6 @@ fn screen_bands(scene: &Scene, sub_bands: usize) -> Vec<ScreenBand> {
         .filter(|p| p.electron_rate_1au > 0.0)
         .map(|p| band(p.centroid, e_band * p.electron_rate_1au / electrons))
         .collect()
-}
-
-/// LIME's band as the flight camera sees it (its QE × T electron response).
-fn lime_band(scene: &Scene) -> Option<LimeBand> {
-    let cam = &scene.camera;
-    Lime::embedded().camera_band(&scene.sun, cam.band, |l| {
-        cam.quantum_efficiency.eval(l) * cam.transmission.eval(l) * l / (PLANCK * LIGHT_SPEED)
-    })
 }
 
 /// The camera's electron-weighted mean wavelength over its band [m]: where
@@ -226,7 +218,7 @@ impl ScreenModel {
             lime: scene
                 .body
                 .lime_reference
-                .then(|| lime_band(scene))
+                .then(|| lime_camera_band(scene))
                 .flatten(),
             effective_all_caps: 0.0,
         }
@@ -331,11 +323,7 @@ impl ScreenModel {
     /// `lime_reference`; None otherwise or where it is not finite.
     pub fn render_over_lime(&self, state: &State) -> Option<f64> {
         let band = self.lime.as_ref()?;
-        let to_body = state.body_attitude.inverse();
-        let geometry = LunarGeometry::from_moon_fixed(
-            to_body * (state.camera_position - state.body_position),
-            to_body * (state.sun_position - state.body_position),
-        )?;
+        let geometry = lunar_geometry(state)?;
         let lime = Lime::embedded().disk_irradiance(band, &geometry);
         let ratio = self.effective_all_caps / lime;
         (lime > 0.0 && ratio.is_finite()).then_some(ratio)
