@@ -32,6 +32,7 @@ fn main() -> anyhow::Result<()> {
         let frame = camera.capture(&CaptureRequest {
             pattern: format!("level_{level}"),
             exposure_s: exposure,
+            shutter: Default::default(),
         })?;
         let mean = frame.data.iter().map(|&v| v as f64).sum::<f64>() / frame.data.len() as f64;
         println!(

@@ -428,6 +428,7 @@ fn req(p: &str) -> CaptureRequest {
     CaptureRequest {
         pattern: p.into(),
         exposure_s: 0.0125,
+        shutter: Default::default(),
     }
 }
 

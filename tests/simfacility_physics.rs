@@ -76,6 +76,7 @@ fn capture(f: &SimFacility, exposure: f64) -> Vec<f32> {
         .capture(&CaptureRequest {
             pattern: "p".into(),
             exposure_s: exposure,
+            shutter: Default::default(),
         })
         .unwrap()
         .data

@@ -319,6 +319,7 @@ pub fn run(
     let probe = inst.camera.capture(&crate::instruments::CaptureRequest {
         pattern: "flat_probe".into(),
         exposure_s: cfg.camera.exposure,
+        shutter: Default::default(),
     })?;
     let (cw, ch) = (probe.width, probe.height);
     let check = |what: &str, len: usize| -> Result<()> {

@@ -200,6 +200,7 @@ impl AutoExposure {
                     format!("{pattern}_x{attempt}")
                 },
                 exposure_s: exposure,
+                shutter: Default::default(),
             };
             let frame = camera.capture(&request)?;
             let stats = region_stats(&frame, dark, rect)?;

@@ -208,6 +208,7 @@ impl<'s> Taker<'s> {
                 let f = inst.camera.capture(&crate::instruments::CaptureRequest {
                     pattern: "probe".into(),
                     exposure_s: cfg.camera.exposure,
+                    shutter: Default::default(),
                 })?;
                 (f.width, f.height)
             }
@@ -301,6 +302,7 @@ impl<'s> Taker<'s> {
         let frame = inst.camera.capture(&crate::instruments::CaptureRequest {
             pattern: "ambient".into(),
             exposure_s: self.auto.max,
+            shutter: Default::default(),
         })?;
         let stats = super::region_stats(&frame, self.dark, self.rect)?;
         let reading = read_meter(&mut inst.meter, "ambient", 0)?;

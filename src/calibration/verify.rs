@@ -176,6 +176,7 @@ pub fn run(
     let probe = inst.camera.capture(&crate::instruments::CaptureRequest {
         pattern: "verify_probe".into(),
         exposure_s: cfg.camera.exposure,
+        shutter: Default::default(),
     })?;
     let mut session = Session {
         inst,

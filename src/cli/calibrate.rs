@@ -133,6 +133,7 @@ fn dark_frame(cfg: &CalibrateConfig, rig: &mut Rig) -> Result<Option<Vec<f32>>> 
             let f = rig.camera.capture(&CaptureRequest {
                 pattern: "dark".into(),
                 exposure_s: cfg.camera.exposure,
+                shutter: optistim::instruments::Shutter::Closed,
             })?;
             ask("uncover the camera")?;
             Ok(Some(f.data))

@@ -54,14 +54,47 @@ pub trait SpotMeter: Send {
     fn describe(&self) -> String;
 }
 
+/// Whether light reaches the detector during a capture.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Shutter {
+    /// A normal frame of what the screen shows.
+    #[default]
+    Open,
+    /// A dark frame: no light on the detector (shutter closed, camera
+    /// capped), bias and dark current only, at the request's exposure.
+    Closed,
+}
+
 /// What the calibration asks the camera for.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct CaptureRequest {
     /// Pattern name, unique within a campaign (e.g. `level_0128_r1`): the
     /// `files` backend waits for a file of this name, errors quote it.
     pub pattern: String,
     /// Exposure time, s.
     pub exposure_s: f64,
+    /// Open for a frame of the screen, closed for a dark frame.
+    pub shutter: Shutter,
+}
+
+impl CaptureRequest {
+    /// A frame of what the screen shows.
+    pub fn light(pattern: impl Into<String>, exposure_s: f64) -> CaptureRequest {
+        CaptureRequest {
+            pattern: pattern.into(),
+            exposure_s,
+            shutter: Shutter::Open,
+        }
+    }
+
+    /// A dark frame (no light on the detector) at this exposure.
+    pub fn dark(pattern: impl Into<String>, exposure_s: f64) -> CaptureRequest {
+        CaptureRequest {
+            pattern: pattern.into(),
+            exposure_s,
+            shutter: Shutter::Closed,
+        }
+    }
 }
 
 /// One frame from the camera, in DN, row-major, top row first.

@@ -36,7 +36,7 @@ use std::time::Instant;
 use crate::error::{Error, Result};
 use crate::facility::display::Display;
 use crate::facility::lut::{decode_grey, FlatField};
-use crate::instruments::{CameraFrame, CaptureRequest, SpotMeter, SpotReading};
+use crate::instruments::{CameraFrame, CaptureRequest, Shutter, SpotMeter, SpotReading};
 
 use camera::{CameraModel, WindowFrame};
 pub use config::SimFacilityConfig;
@@ -294,6 +294,11 @@ impl SimFacility {
     /// A camera frame of what the screen showed during [now − exposure,
     /// now], without moving the clock.
     pub fn capture_last(&self, exposure: f64) -> Result<CameraFrame> {
+        self.capture_window(exposure, true)
+    }
+
+    /// A frame over [now − exposure, now]: of the screen (`light`) or dark.
+    fn capture_window(&self, exposure: f64, light: bool) -> Result<CameraFrame> {
         if !(exposure.is_finite() && exposure > 0.0 && exposure <= 3600.0) {
             return Err(Error::invalid(
                 "exposure",
@@ -303,7 +308,11 @@ impl SimFacility {
         let (frames, index) = {
             let mut st = self.state();
             let now = st.now;
-            let frames = self.window(&st, now - exposure, now);
+            let frames = if light {
+                self.window(&st, now - exposure, now)
+            } else {
+                Vec::new()
+            };
             st.captures += 1;
             (frames, st.captures - 1)
         };
@@ -332,6 +341,12 @@ impl SimFacility {
             exposure_s: exposure,
             saturation_dn: m.cfg.camera.max_dn() as f32,
         })
+    }
+
+    /// A dark frame (shutter closed: bias, dark current and noise only) of
+    /// `exposure` s ending now, without moving the clock.
+    pub fn capture_dark(&self, exposure: f64) -> Result<CameraFrame> {
+        self.capture_window(exposure, false)
     }
 
     /// One meter reading over [now − integration, now].
@@ -458,7 +473,10 @@ impl crate::instruments::Camera for SimCamera {
             ));
         }
         self.facility.advance(t);
-        self.facility.capture_last(t)
+        match request.shutter {
+            Shutter::Open => self.facility.capture_last(t),
+            Shutter::Closed => self.facility.capture_dark(t),
+        }
     }
 
     fn describe(&self) -> String {

@@ -664,6 +664,7 @@ fn capture(
     camera.capture(&CaptureRequest {
         pattern: pattern.to_string(),
         exposure_s: cfg.exposure,
+        shutter: Default::default(),
     })
 }
 
