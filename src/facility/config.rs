@@ -51,6 +51,10 @@
 //! [timing]
 //! state_timeout = 0.5         # s
 //! refreshes_per_frame = 1     # frame rate = refresh_hz / this
+//! governor = "off"            # "auto": per frame the finest render rung that fits its slot; "fixed": always `governor_rung`
+//! governor_rung = 0           # with "fixed": the rung (0 = the configured fidelity)
+//! governor_max_block = 4      # coarsest render block the ladder goes down to (1–8)
+//! governor_max_pixel_error = 0.1  # a frame whose rung's predicted per-pixel error (p99) exceeds this counts as degraded
 //! ```
 //!
 //! Unknown keys are errors. Parse errors name the file, line and key;
@@ -338,6 +342,40 @@ pub struct TimingConfig {
     /// the first refresh of its slot, so it is shown for all of them.
     #[serde(default = "default_refreshes_per_frame")]
     pub refreshes_per_frame: u32,
+    /// The frame-time governor ([`crate::facility::governor`]).
+    #[serde(default)]
+    pub governor: GovernorMode,
+    /// The rung of `governor = "fixed"` (0: the configured fidelity).
+    #[serde(default)]
+    pub governor_rung: usize,
+    /// The coarsest render block of the governor's ladder.
+    #[serde(default = "default_governor_max_block")]
+    pub governor_max_block: usize,
+    /// Predicted per-pixel error (p99, against the finest rung) above
+    /// which a frame counts as degraded.
+    #[serde(default = "default_governor_max_pixel_error")]
+    pub governor_max_pixel_error: f64,
+}
+
+/// `timing.governor`.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum GovernorMode {
+    /// Every frame at the configured fidelity.
+    #[default]
+    Off,
+    /// Per frame, the finest rung predicted to fit its slot.
+    Auto,
+    /// Every frame at `governor_rung`.
+    Fixed,
+}
+
+fn default_governor_max_block() -> usize {
+    4
+}
+
+fn default_governor_max_pixel_error() -> f64 {
+    0.1
 }
 
 fn default_refreshes_per_frame() -> u32 {
@@ -358,6 +396,10 @@ impl Default for TimingConfig {
             state_timeout: default_state_timeout(),
             late_latch: default_late_latch(),
             refreshes_per_frame: default_refreshes_per_frame(),
+            governor: GovernorMode::Off,
+            governor_rung: 0,
+            governor_max_block: default_governor_max_block(),
+            governor_max_pixel_error: default_governor_max_pixel_error(),
         }
     }
 }
@@ -604,7 +646,24 @@ impl TimingConfig {
                 "must be in 1..=120",
             ));
         }
-        Ok(())
+        if !(1..=MAX_RENDER_BLOCK).contains(&self.governor_max_block) {
+            return Err(Error::invalid(
+                "timing.governor_max_block",
+                format!("must be in 1..={MAX_RENDER_BLOCK}"),
+            ));
+        }
+        if self.governor_rung > 16 {
+            return Err(Error::invalid(
+                "timing.governor_rung",
+                "must be in 0..=16 (and exist in the ladder: checked at start)",
+            ));
+        }
+        in_range(
+            "timing.governor_max_pixel_error",
+            self.governor_max_pixel_error,
+            1e-6,
+            10.0,
+        )
     }
 }
 

@@ -38,6 +38,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::facility::governor::{FrameFidelity, GovernorSummary};
 
 /// One frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -93,6 +94,10 @@ pub struct FrameRecord {
     /// electrons); absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub render_over_lime: Option<f64>,
+    /// The frame-time governor's rung and its predicted error (absent with
+    /// `timing.governor = "off"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fidelity: Option<FrameFidelity>,
 }
 
 /// A number, or `null` (how serde_json writes a non-finite `f64`) read
@@ -255,6 +260,10 @@ pub struct Summary {
     /// when no frame had one.
     #[serde(default)]
     pub render_over_lime_range: Option<[f64; 2]>,
+    /// Frames per governor rung and their predicted errors (absent with
+    /// `timing.governor = "off"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub governor: Option<GovernorSummary>,
 }
 
 /// True when `file` is non-empty and its last byte is not a newline.
@@ -285,6 +294,7 @@ pub struct FrameLog {
     sync_not_sent: u64,
     udp_kernel_drops: Option<u64>,
     lime_range: Option<[f64; 2]>,
+    governor: Option<GovernorSummary>,
 }
 
 impl FrameLog {
@@ -323,6 +333,7 @@ impl FrameLog {
             sync_not_sent: 0,
             udp_kernel_drops: None,
             lime_range: None,
+            governor: None,
         })
     }
 
@@ -371,7 +382,16 @@ impl FrameLog {
         if let Some(r) = rec.t_state_received {
             self.latencies.add(rec.t_presented - r);
         }
+        if let (Some(g), Some(f)) = (&mut self.governor, &rec.fidelity) {
+            g.add(f);
+        }
         Ok(())
+    }
+
+    /// The run is governed over rungs labelled `labels`: the summary
+    /// tallies its frames per rung.
+    pub fn set_governor_rungs(&mut self, labels: Vec<String>) {
+        self.governor = Some(GovernorSummary::new(labels));
     }
 
     /// Records the pre-flight render time [s] for the summary.
@@ -407,6 +427,7 @@ impl FrameLog {
             sync_not_sent: self.sync_not_sent,
             udp_kernel_drops: self.udp_kernel_drops,
             render_over_lime_range: self.lime_range,
+            governor: self.governor.clone(),
         }
     }
 

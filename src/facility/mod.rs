@@ -7,6 +7,7 @@
 //! | [`udp`] | closed-loop states over UDP (newest wins, stale/malformed counted) |
 //! | [`lut`] | display radiance LUT (PCHIP, inverse, SHA-256) and flat field |
 //! | [`geometry`] | geometric calibration file (screen pixel → camera direction) and the pre-warp |
+//! | [`governor`] | the frame-time governor: render fidelity rungs, their cost and error, the choice per frame |
 //! | [`dither`] | target radiance → drive levels in the body's ROI (k, τ, flat field, dithering) |
 //! | [`frame_id`] | frame number drawn as a binary block in a corner, and its decoder |
 //! | [`display`] | the [`Display`](display::Display) trait, simulated and full-screen X11 displays |
@@ -30,6 +31,7 @@ pub mod driver;
 pub mod epoch_trajectory;
 pub mod frame_id;
 pub mod geometry;
+pub mod governor;
 pub mod log;
 pub mod lut;
 pub mod serial;

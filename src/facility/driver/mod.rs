@@ -25,6 +25,7 @@
 //! - here: [`run`], which loads the calibration, times the scene, starts
 //!   the render thread, presents, and writes the run summary.
 
+pub mod fidelity;
 mod present;
 mod render_thread;
 pub mod screen;
@@ -41,11 +42,12 @@ pub use render_thread::BUDGET_WINDOW;
 use render_thread::{scene_state, Pacer, RenderThread, Source};
 pub use screen::{block_pinhole, screen_pinhole, ScreenModel};
 
-use super::config::FacilityConfig;
+use super::config::{FacilityConfig, GovernorMode};
 use super::display::Display;
 use super::dither::{ConvertSettings, Converter, ThresholdMatrix};
 use super::frame_id::FrameIdCode;
 use super::geometry::GeometryCalibration;
+use super::governor::{Governor, Mode, RungProfile};
 use super::log::{FrameLog, Summary};
 use super::lut::{DisplayLut, FlatField};
 use super::serial::{CommandTemplate, SyncPort};
@@ -210,6 +212,116 @@ fn preflight_report(
     render_time
 }
 
+/// The screen models a run renders with, and its governor.
+struct Fidelity {
+    /// One per rung, finest first (one without a governor).
+    models: Vec<ScreenModel>,
+    governor: Option<Governor>,
+    /// The pre-flight's render time of the first state at full fidelity.
+    preflight_render: Duration,
+}
+
+impl Fidelity {
+    /// Without a governor: the configured model, timed on the first state.
+    /// With one: every rung profiled over the run's apparent sizes.
+    fn prepare(
+        config: &FacilityConfig,
+        scene: &Scene,
+        geometry: Option<&GeometryCalibration>,
+        source: &Source,
+        first_state: &State,
+        slots: Slots,
+    ) -> Result<Fidelity> {
+        let mode = match config.timing.governor {
+            GovernorMode::Off => {
+                let mut model = ScreenModel::new(config, scene, geometry);
+                let t = preflight_report(&mut model, scene, first_state, slots, config);
+                return Ok(Fidelity {
+                    models: vec![model],
+                    governor: None,
+                    preflight_render: t,
+                });
+            }
+            GovernorMode::Auto => Mode::Auto,
+            GovernorMode::Fixed => Mode::Fixed(config.timing.governor_rung),
+        };
+        let f_px = screen_pinhole(config).fx;
+        let (rungs, mut models) = fidelity::rung_models(config, scene, geometry);
+        if let Mode::Fixed(i) = mode {
+            if i >= rungs.len() {
+                return Err(Error::invalid(
+                    "timing.governor_rung",
+                    format!(
+                        "rung {i} does not exist: the ladder has {} ({})",
+                        rungs.len(),
+                        rungs
+                            .iter()
+                            .map(|r| r.label.as_str())
+                            .collect::<Vec<_>>()
+                            .join("; ")
+                    ),
+                ));
+            }
+        }
+        let samples = match source {
+            Source::Replay { states, .. } => {
+                let states: Vec<State> = states
+                    .iter()
+                    .map(|s| scene_state(s, &scene.state))
+                    .collect();
+                fidelity::sample_states(&states, scene, f_px)
+            }
+            Source::Udp(_) => fidelity::scaled_states(first_state),
+        };
+        let samples = if samples.is_empty() {
+            fidelity::scaled_states(first_state)
+        } else {
+            samples
+        };
+        let mut reference = fidelity::reference_model(config, scene, geometry);
+        let profiles = fidelity::profile(rungs, &mut models, &mut reference, scene, &samples, f_px);
+        report_profiles(&profiles, slots);
+        let first = fidelity::apparent_area(scene, first_state, f_px);
+        let preflight_render =
+            Duration::from_secs_f64(profiles[0].predict_seconds(first).clamp(0.0, 3600.0));
+        let governor = Governor::new(profiles, mode, config.timing.governor_max_pixel_error);
+        Ok(Fidelity {
+            models,
+            governor: Some(governor),
+            preflight_render,
+        })
+    }
+}
+
+/// Logs each rung's measured times and errors, and warns when even the
+/// coarsest does not fit a slot at the largest size profiled.
+fn report_profiles(profiles: &[RungProfile], slots: Slots) {
+    for (i, p) in profiles.iter().enumerate() {
+        let s = p.samples();
+        let (small, large) = (s[0], s[s.len() - 1]);
+        tracing::info!(
+            rung = i,
+            label = %p.rung.label,
+            area_px = format!("{:.0}..{:.0}", small.area_px, large.area_px),
+            render_ms = format!("{:.1}..{:.1}", small.seconds * 1e3, large.seconds * 1e3),
+            pixel_error_p99 = format!("{:.1e}..{:.1e}", small.pixel_error, large.pixel_error),
+            flux_error = format!("{:.1e}..{:.1e}", small.flux_error, large.flux_error),
+            "governor rung"
+        );
+    }
+    let coarsest = &profiles[profiles.len() - 1];
+    let largest = coarsest.samples().last().map_or(0.0, |s| s.area_px);
+    let t = coarsest.predict_seconds(largest) * crate::facility::governor::SAFETY;
+    if t > slots.period.as_secs_f64() {
+        tracing::warn!(
+            coarsest_ms = t * 1e3,
+            slot_ms = slots.period.as_secs_f64() * 1e3,
+            "even the coarsest rung does not fit a slot at the largest size: expect late frames; \
+             raise timing.refreshes_per_frame or timing.governor_max_block"
+        );
+    }
+}
+
 /// The frame's sync line as the config and the scene give it.
 fn sync_line(config: &FacilityConfig, scene: &Scene) -> Result<SyncLine> {
     let exposure = config
@@ -269,15 +381,28 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
         screen = format!("{w}x{h}"),
         "facility scale k (flight radiance × k = screen radiance before τ and flat field)"
     );
-    let mut model = ScreenModel::new(config, &scene, geometry.as_ref());
     let refresh = Duration::from_secs_f64(1.0 / config.screen.refresh_hz);
     let slots = Slots {
         refresh,
         period: refresh * config.timing.refreshes_per_frame,
     };
-    let render_time = preflight_report(&mut model, &scene, &first_state, slots, config);
+    let Fidelity {
+        models,
+        governor,
+        preflight_render,
+    } = Fidelity::prepare(
+        config,
+        &scene,
+        geometry.as_ref(),
+        &source,
+        &first_state,
+        slots,
+    )?;
     let mut log = FrameLog::open(&plan.log, Instant::now())?;
-    log.set_preflight_render(render_time.as_secs_f64());
+    log.set_preflight_render(preflight_render.as_secs_f64());
+    if let Some(g) = &governor {
+        log.set_governor_rungs(g.profiles().iter().map(|p| p.rung.label.clone()).collect());
+    }
     // Two frame buffers circulate: one on screen, one being rendered.
     let (free_tx, free_rx) = channel();
     let (ready_tx, ready_rx) = sync_channel(1);
@@ -290,7 +415,9 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     let pacer = config.timing.late_latch.then(|| Arc::new(Pacer::default()));
     let thread = RenderThread {
         scene,
-        model,
+        models,
+        governor,
+        f_px: screen_pinhole(config).fx,
         converter,
         frame_id,
         source,

@@ -186,6 +186,7 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
             geometry_sha256: self.stamps.geometry_sha256.clone(),
             safe_frame: job.safe,
             render_over_lime: job.render_over_lime,
+            fidelity: job.fidelity,
         }
     }
 }

@@ -12,6 +12,7 @@ use super::screen::ScreenModel;
 use crate::error::Result;
 use crate::facility::dither::{Converter, Roi};
 use crate::facility::frame_id::FrameIdCode;
+use crate::facility::governor::{FrameFidelity, Governor};
 use crate::facility::throttle::Throttle;
 use crate::facility::trajectory::State as TrajectoryState;
 use crate::facility::udp::UdpStateReceiver;
@@ -36,6 +37,8 @@ pub(super) struct Job {
     pub safe: bool,
     /// The render's error against LIME (a `lime_reference` body).
     pub render_over_lime: Option<f64>,
+    /// The governor's rung and predicted error, when it governs.
+    pub fidelity: Option<FrameFidelity>,
 }
 
 /// Shared by the two threads for late latching: the next free slot with
@@ -86,14 +89,23 @@ impl Pacer {
 #[derive(Default)]
 struct Budget {
     recent: std::collections::VecDeque<Duration>,
+    /// Recent conversion (and frame-id) times.
+    convert: std::collections::VecDeque<Duration>,
 }
 
 impl Budget {
-    fn record(&mut self, d: Duration) {
+    fn record(&mut self, work: Duration, convert: Duration) {
         if self.recent.len() == BUDGET_WINDOW {
             self.recent.pop_front();
+            self.convert.pop_front();
         }
-        self.recent.push_back(d);
+        self.recent.push_back(work);
+        self.convert.push_back(convert);
+    }
+
+    /// The slowest recent conversion.
+    fn convert_time(&self) -> Duration {
+        self.convert.iter().max().copied().unwrap_or_default()
     }
 
     /// Time to reserve before a slot: the slowest recent frame, the
@@ -158,7 +170,13 @@ impl DrawnRegions {
 /// Everything the render thread owns.
 pub(super) struct RenderThread {
     pub scene: Scene,
-    pub model: ScreenModel,
+    /// One screen model per fidelity rung (one without a governor).
+    pub models: Vec<ScreenModel>,
+    /// The frame-time governor, when `timing.governor` is on.
+    pub governor: Option<Governor>,
+    /// Screen pixels per unit tangent (the apparent size the governor
+    /// predicts from).
+    pub f_px: f64,
     pub converter: Converter,
     pub frame_id: FrameIdCode,
     pub source: Source,
@@ -192,22 +210,30 @@ impl RenderThread {
         let mut drawn = DrawnRegions::default();
         let mut warned_peak = false;
         let mut frame = 0u64;
+        // The body's apparent area in the last state shown (the governor
+        // chooses before the newest state is taken, for its freshness).
+        let mut area = f64::NAN;
         while !self.stop.load(Ordering::Relaxed) && self.frames.is_none_or(|n| frame < n) {
             let Ok(mut buffer) = self.free.recv() else {
                 break;
             };
-            self.wait_for_latch(frame, &budget);
+            let choice = self.choose_rung(frame, &budget, area);
+            let reserve = choice.map(|c| c.predicted + budget.convert_time());
+            self.wait_for_latch(frame, &budget, reserve);
             let render_start = Instant::now();
             let Some((state, received)) = self.next_state(&mut last) else {
                 break;
             };
-            let entry = drawn.clear(&mut buffer, self.model.screen.0, black);
+            let rung = choice.map_or(0, |c| c.rung);
+            let entry = drawn.clear(&mut buffer, self.models[rung].screen.0, black);
             self.converter.forget_previous_roi();
             let shown = state.as_ref().map(|s| scene_state(s, &self.scene.state));
-            let roi = shown.and_then(|st| self.model.render(&self.scene, &st));
+            let roi = shown.and_then(|st| self.models[rung].render(&self.scene, &st));
             let render_end = Instant::now();
-            let render_over_lime = shown.and_then(|st| self.model.render_over_lime(&st));
-            let (clipped, peak) = self.convert(roi, frame, &mut buffer, &mut warned_peak)?;
+            let render_over_lime = shown.and_then(|st| self.models[rung].render_over_lime(&st));
+            let fidelity =
+                self.account(choice, shown.as_ref(), &mut area, render_end - render_start);
+            let (clipped, peak) = self.convert(rung, roi, frame, &mut buffer, &mut warned_peak)?;
             drawn.remember(entry, roi);
             if state.is_none() {
                 if let Some(more) = no_state.hit(Instant::now()) {
@@ -220,7 +246,7 @@ impl RenderThread {
             }
             self.frame_id.encode(&mut buffer, frame)?;
             let convert_end = Instant::now();
-            budget.record(convert_end - render_start);
+            budget.record(convert_end - render_start, convert_end - render_end);
             let job = Job {
                 buffer,
                 frame,
@@ -233,6 +259,7 @@ impl RenderThread {
                 peak,
                 safe: state.is_none(),
                 render_over_lime,
+                fidelity,
             };
             if self.ready.send(job).is_err() {
                 break;
@@ -245,15 +272,76 @@ impl RenderThread {
         })
     }
 
+    /// The governor's rung for `frame`: the finest whose predicted render
+    /// fits the time to its slot (at most one slot), less the conversion,
+    /// the present and the margin. None without a governor.
+    fn choose_rung(
+        &self,
+        frame: u64,
+        budget: &Budget,
+        area: f64,
+    ) -> Option<crate::facility::governor::Choice> {
+        let governor = self.governor.as_ref()?;
+        let present = self
+            .pacer
+            .as_ref()
+            .map_or(Duration::ZERO, |p| p.present_time());
+        let overhead = budget.convert_time() + present + BUDGET_MARGIN;
+        let mut available = self.period.saturating_sub(overhead);
+        if let Some(slot) = self
+            .pacer
+            .as_ref()
+            .and_then(|p| p.slot_of(frame, self.period))
+        {
+            let until = slot.saturating_duration_since(Instant::now());
+            available = available.min(until.saturating_sub(overhead));
+        }
+        // Before the first state: the largest size the pre-flight saw.
+        let area = if area.is_finite() {
+            area
+        } else {
+            governor.largest_profiled_area()
+        };
+        Some(governor.choose(area, available))
+    }
+
+    /// Feeds the frame's render time back to the governor and returns what
+    /// the frame logs: its rung with the error predicted at its own size.
+    fn account(
+        &mut self,
+        choice: Option<crate::facility::governor::Choice>,
+        shown: Option<&State>,
+        area: &mut f64,
+        took: Duration,
+    ) -> Option<FrameFidelity> {
+        let (governor, choice) = (self.governor.as_mut()?, choice?);
+        let Some(state) = shown else {
+            return Some(choice.into());
+        };
+        *area = super::fidelity::apparent_area(&self.scene, state, self.f_px);
+        governor.record(choice.rung, *area, took);
+        let (pixel, flux) = governor.profiles()[choice.rung].predict_error(*area);
+        Some(FrameFidelity {
+            predicted_pixel_error: pixel,
+            predicted_flux_error: flux,
+            ..choice.into()
+        })
+    }
+
     /// Late latching: sleeps until the slot frame `frame` will take, minus
-    /// the budget of recent frames.
-    fn wait_for_latch(&self, frame: u64, budget: &Budget) {
+    /// the governor's predicted work (`reserve`) or, without one, the
+    /// budget of recent frames.
+    fn wait_for_latch(&self, frame: u64, budget: &Budget, reserve: Option<Duration>) {
         let Some(pacer) = &self.pacer else { return };
         // The slot this frame will be shown in, counted from the next free
         // slot past the frames still queued before it.
         let target = pacer.slot_of(frame, self.period);
+        let reserve = match reserve {
+            Some(r) => Some(r + pacer.present_time() + BUDGET_MARGIN),
+            None => budget.reserve(pacer.present_time()),
+        };
         let Some(start) = target
-            .zip(budget.reserve(pacer.present_time()))
+            .zip(reserve)
             .and_then(|(slot, reserve)| slot.checked_sub(reserve))
         else {
             return;
@@ -299,6 +387,7 @@ impl RenderThread {
     /// screen cannot show the peak).
     fn convert(
         &mut self,
+        rung: usize,
         roi: Option<Roi>,
         frame: u64,
         buffer: &mut [u32],
@@ -307,7 +396,7 @@ impl RenderThread {
         let Some(r) = roi else { return Ok((0, 0.0)) };
         let stats = self
             .converter
-            .convert(&self.model.roi_target, r, frame, buffer)?;
+            .convert(&self.models[rung].roi_target, r, frame, buffer)?;
         if stats.clipped_high > 0 && !*warned_peak {
             *warned_peak = true;
             tracing::warn!(

@@ -11,7 +11,7 @@ use crate::radiometry::lime::{Lime, LimeBand};
 use crate::radiometry::reflectance::Reflectance;
 use crate::radiometry::spectrum::band_integrals;
 use crate::render::detector::{band_model, lime_camera_band, lunar_geometry};
-use crate::render::{BandModel, Renderer};
+use crate::render::{BandModel, RenderSettings, Renderer};
 use crate::scene::{Pinhole, Scene, State};
 
 /// The static part of the screen-space renderer: what the camera sees on
@@ -20,8 +20,11 @@ use crate::scene::{Pinhole, Scene, State};
 /// screen.
 pub struct ScreenModel {
     renderer: Renderer,
-    /// Screen pixels per rendered pixel along each axis (`screen.render_block`).
+    /// Screen pixels per rendered pixel along each axis (`screen.render_block`,
+    /// or a governor rung's).
     block: usize,
+    /// The renderer's settings: the scene's, or a governor rung's.
+    settings: RenderSettings,
     solid_angle: Vec<f32>,
     /// What one frame renders: one band, or `drive.sub_bands` parts of the
     /// camera's band for a spectral body.
@@ -41,6 +44,8 @@ pub struct ScreenModel {
     /// Camera-effective disk irradiance of the last render, over all caps
     /// [W m⁻²].
     effective_all_caps: f64,
+    /// The screen ROI of the last render.
+    last_roi: Option<Roi>,
 }
 
 /// One render of a frame: the body's model in a part of the camera's band,
@@ -143,8 +148,13 @@ pub fn screen_pinhole(config: &FacilityConfig) -> Pinhole {
 /// screen pinhole with `screen.render_block`² screen pixels per pixel.
 /// Rendered pixel (I, J) covers screen pixels [bI, bI + b) × [bJ, bJ + b).
 pub fn block_pinhole(config: &FacilityConfig) -> Pinhole {
+    block_grid(config, config.screen.render_block)
+}
+
+/// The screen pinhole with `b`² screen pixels per rendered pixel.
+fn block_grid(config: &FacilityConfig, b: usize) -> Pinhole {
     let screen = screen_pinhole(config);
-    let b = config.screen.render_block.max(1);
+    let b = b.max(1);
     let s = 1.0 / b as f64;
     Pinhole {
         width: screen.width.div_ceil(b),
@@ -166,6 +176,19 @@ impl ScreenModel {
         geometry: Option<&GeometryCalibration>,
     ) -> Self {
         let block = config.screen.render_block.max(1);
+        Self::with_fidelity(config, scene, geometry, block, scene.render.clone())
+    }
+
+    /// The model rendering blocks of `block`² screen pixels with
+    /// `settings` (a frame-time governor's rung).
+    pub fn with_fidelity(
+        config: &FacilityConfig,
+        scene: &Scene,
+        geometry: Option<&GeometryCalibration>,
+        block: usize,
+        settings: RenderSettings,
+    ) -> Self {
+        let block = block.max(1);
         let warp = geometry.map(|g| {
             let warp = PreWarp::with_block(g, block);
             let nominal = config.collimator.focal_length / config.screen.pixel_pitch;
@@ -182,7 +205,7 @@ impl ScreenModel {
         });
         let pin = match &warp {
             Some(w) => w.ideal_pinhole().clone(),
-            None => block_pinhole(config),
+            None => block_grid(config, block),
         };
         let camera_fx = scene.camera.pinhole.fx.min(scene.camera.pinhole.fy);
         if block > 1 && pin.fx < camera_fx {
@@ -203,6 +226,7 @@ impl ScreenModel {
         ScreenModel {
             renderer,
             block,
+            settings,
             solid_angle,
             bands: screen_bands(scene, config.drive.sub_bands),
             accumulated: Vec::new(),
@@ -221,6 +245,7 @@ impl ScreenModel {
                 .then(|| lime_camera_band(scene))
                 .flatten(),
             effective_all_caps: 0.0,
+            last_roi: None,
         }
     }
 
@@ -234,6 +259,16 @@ impl ScreenModel {
     /// `state` onto the screen; returns the screen ROI ([`target`](Self::target)
     /// holds its radiance, row-major) or None when nothing is visible.
     pub fn render(&mut self, scene: &Scene, state: &State) -> Option<Roi> {
+        self.last_roi = self.render_roi(scene, state);
+        self.last_roi
+    }
+
+    /// The screen ROI of the last [`render`](Self::render).
+    pub fn last_roi(&self) -> Option<Roi> {
+        self.last_roi
+    }
+
+    fn render_roi(&mut self, scene: &Scene, state: &State) -> Option<Roi> {
         let mut st = *state;
         // The screen's x axis is turned by `rotation` in the camera frame.
         st.camera_attitude = state.camera_attitude * DQuat::from_rotation_z(self.rotation);
@@ -299,7 +334,7 @@ impl ScreenModel {
             };
             let stats = self
                 .renderer
-                .render_flux_band(&scene.body, st, &scene.render, &band);
+                .render_flux_band(&scene.body, st, &self.settings, &band);
             let r = *roi.get_or_insert(stats.roi);
             self.effective_all_caps += b.weight * stats.total_flux;
             if self.bands.len() == 1 {

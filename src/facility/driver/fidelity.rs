@@ -1,0 +1,198 @@
+//! The governor's pre-flight: before the first frame, every rung of the
+//! ladder renders states spanning the run's range of apparent sizes; the
+//! times give each rung's cost model and the images, compared with a
+//! converged render of the same state (the lune's caps at
+//! [`REFERENCE_DENSITY`]² per pixel, the map's exact footprint means), its
+//! per-pixel and disk-flux error ([`crate::facility::governor`]).
+
+use std::time::Instant;
+
+use super::screen::ScreenModel;
+use crate::facility::config::FacilityConfig;
+use crate::facility::geometry::GeometryCalibration;
+use crate::facility::governor::{ladder, Rung, RungProfile, Sample};
+use crate::render::{Interior, MapFilter, RenderSettings};
+use crate::scene::{Scene, State};
+
+/// Caps per pixel along each axis of the converged reference render.
+pub const REFERENCE_DENSITY: f64 = 3.0;
+
+/// States profiled per rung.
+const SAMPLE_STATES: usize = 5;
+/// Renders per state and rung; the fastest counts (the others absorb
+/// first-use costs and the machine's noise).
+const REPEATS: usize = 2;
+/// Pixels below this fraction of the finest render's peak are left out of
+/// the per-pixel error (the dark side and the sky).
+const PIXEL_FLOOR: f32 = 0.05;
+
+/// Apparent disk area of the body in `state`, screen px², for a screen of
+/// `f_px` pixels per unit tangent.
+pub fn apparent_area(scene: &Scene, state: &State, f_px: f64) -> f64 {
+    let d = (state.body_position - state.camera_position).length();
+    let r = scene.body.radius;
+    if !(d > r) {
+        return f64::INFINITY;
+    }
+    let tan = r / (d * d - r * r).sqrt();
+    std::f64::consts::PI * (f_px * tan).powi(2)
+}
+
+/// Up to [`SAMPLE_STATES`] of `states` at evenly spaced quantiles of their
+/// apparent area (smallest and largest included).
+pub fn sample_states(states: &[State], scene: &Scene, f_px: f64) -> Vec<State> {
+    let mut by_area: Vec<(f64, State)> = states
+        .iter()
+        .map(|s| (apparent_area(scene, s, f_px), *s))
+        .filter(|(a, _)| a.is_finite())
+        .collect();
+    by_area.sort_by(|a, b| a.0.total_cmp(&b.0));
+    if by_area.len() <= SAMPLE_STATES {
+        return by_area.into_iter().map(|x| x.1).collect();
+    }
+    let last = by_area.len() - 1;
+    (0..SAMPLE_STATES)
+        .map(|i| by_area[i * last / (SAMPLE_STATES - 1)].1)
+        .collect()
+}
+
+/// States of the scene's own geometry with the camera moved along its line
+/// of sight so the body spans 1/16 to 4 × its apparent area: the sizes a
+/// closed loop may bring, when no trajectory says.
+pub fn scaled_states(state: &State) -> Vec<State> {
+    [4.0, 2.0, 1.0, 0.5, 0.25]
+        .iter()
+        .map(|&k| {
+            let mut s = *state;
+            s.camera_position = s.body_position + (s.camera_position - s.body_position) * k;
+            s
+        })
+        .collect()
+}
+
+/// One model per rung of the ladder of `config` (finest first).
+pub fn rung_models(
+    config: &FacilityConfig,
+    scene: &Scene,
+    geometry: Option<&GeometryCalibration>,
+) -> (Vec<Rung>, Vec<ScreenModel>) {
+    let rungs = ladder(
+        &scene.render,
+        config.screen.render_block,
+        config
+            .timing
+            .governor_max_block
+            .max(config.screen.render_block),
+    );
+    let models = rungs
+        .iter()
+        .map(|r| ScreenModel::with_fidelity(config, scene, geometry, r.block, r.settings.clone()))
+        .collect();
+    (rungs, models)
+}
+
+/// Settings of the converged reference: the lune's caps everywhere at
+/// [`REFERENCE_DENSITY`] per pixel and axis, exact map means.
+pub fn reference_settings(base: &RenderSettings) -> RenderSettings {
+    let mut s = base.clone();
+    s.caps_per_pixel = Some(REFERENCE_DENSITY);
+    s.min_caps = s.min_caps.max(256);
+    s.interior = Interior::Caps;
+    s.map_filter = MapFilter::Exact;
+    s
+}
+
+/// The converged reference model of `config`'s screen.
+pub fn reference_model(
+    config: &FacilityConfig,
+    scene: &Scene,
+    geometry: Option<&GeometryCalibration>,
+) -> ScreenModel {
+    let settings = reference_settings(&scene.render);
+    ScreenModel::with_fidelity(
+        config,
+        scene,
+        geometry,
+        config.screen.render_block,
+        settings,
+    )
+}
+
+/// Profiles every rung on `samples`: times, and errors against the
+/// converged `reference` render of each state.
+pub fn profile(
+    rungs: Vec<Rung>,
+    models: &mut [ScreenModel],
+    reference: &mut ScreenModel,
+    scene: &Scene,
+    samples: &[State],
+    f_px: f64,
+) -> Vec<RungProfile> {
+    let mut per_rung: Vec<Vec<Sample>> = vec![Vec::new(); models.len()];
+    for state in samples {
+        let area_px = apparent_area(scene, state, f_px);
+        reference.render(scene, state);
+        let truth = screen_image(reference);
+        for (i, model) in models.iter_mut().enumerate() {
+            let seconds = fastest_render(model, scene, state);
+            let (pixel_error, flux_error) = compare(&screen_image(model), &truth);
+            per_rung[i].push(Sample {
+                area_px,
+                seconds,
+                pixel_error,
+                flux_error,
+            });
+        }
+    }
+    rungs
+        .into_iter()
+        .zip(per_rung)
+        .map(|(r, s)| RungProfile::new(r, s))
+        .collect()
+}
+
+/// The fastest of [`REPEATS`] renders of `state`, s.
+fn fastest_render(model: &mut ScreenModel, scene: &Scene, state: &State) -> f64 {
+    (0..REPEATS)
+        .map(|_| {
+            let t = Instant::now();
+            model.render(scene, state);
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// The last render's radiance over the whole screen, row-major.
+pub fn screen_image(model: &ScreenModel) -> Vec<f32> {
+    let (w, h) = model.screen;
+    let mut image = vec![0.0f32; w * h];
+    if let Some(roi) = model.last_roi() {
+        for (k, &v) in model.target().iter().enumerate() {
+            let (x, y) = (roi.x + k % roi.width, roi.y + k / roi.width);
+            image[y * w + x] = v;
+        }
+    }
+    image
+}
+
+/// (p99 of |image / reference − 1| over the reference's pixels above
+/// [`PIXEL_FLOOR`] of its peak, |Σ image / Σ reference − 1|).
+pub fn compare(image: &[f32], reference: &[f32]) -> (f64, f64) {
+    let peak = reference.iter().copied().fold(0.0f32, f32::max);
+    if !(peak > 0.0) {
+        return (0.0, 0.0);
+    }
+    let mut errors: Vec<f64> = image
+        .iter()
+        .zip(reference)
+        .filter(|(_, &r)| r > PIXEL_FLOOR * peak)
+        .map(|(&a, &r)| (a as f64 / r as f64 - 1.0).abs())
+        .collect();
+    errors.sort_by(f64::total_cmp);
+    let p99 = errors
+        .get((errors.len() * 99 / 100).min(errors.len().saturating_sub(1)))
+        .copied()
+        .unwrap_or(0.0);
+    let sum = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>();
+    (p99, (sum(image) / sum(reference) - 1.0).abs())
+}
