@@ -10,6 +10,7 @@
 //! | [`scene`] | what is out there: camera, body, Sun, poses; the TOML scene file |
 //! | [`ephemeris`] | epochs → Sun and Moon positions and the Moon's orientation, from SPICE kernels |
 //! | [`radiometry`] | how light is made and reflected: solar spectra, reflectance models, band integrals |
+//! | [`render_settings`] | the renderer's settings (the `[render]` table), read by the scene file, the renderer and the governor |
 //! | [`render`] | the paper's method: surface caps, their power coefficients PF_i, gridding onto pixels, the detector chain |
 //! | [`facility`] | the real-time loop: states in, display LUT, screen, serial sync, frame log |
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
@@ -42,6 +43,7 @@ pub mod outfile;
 pub mod progress;
 pub mod radiometry;
 pub mod render;
+pub mod render_settings;
 pub mod scene;
 pub mod simfacility;
 pub mod validate;

@@ -33,12 +33,7 @@ use crate::scene::EquirectMap;
 
 /// Smallest apparent radius [px] at which interior pixels are worth it.
 pub const MIN_RADIUS_PX: f64 = 12.0;
-/// Default spacing [px] of the interior pixels' node lattice
-/// ([`super::RenderSettings::node_spacing`]).
-pub const DEFAULT_NODE_SPACING: usize = 4;
-/// Default estimated relative error up to which one point per pixel is
-/// kept ([`super::RenderSettings::pixel_tolerance`]).
-pub const DEFAULT_PIXEL_TOLERANCE: f64 = 1e-4;
+pub use crate::render_settings::{DEFAULT_NODE_SPACING, DEFAULT_PIXEL_TOLERANCE};
 /// Distance from the limb [px] from which 2×2 Gauss points may suffice.
 pub const GAUSS2_MIN_PX: f64 = 1.2;
 /// Largest relative change from the midpoint to the 2×2 rule, in pixel

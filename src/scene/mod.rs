@@ -17,7 +17,7 @@ use crate::ephemeris::{self, Ephemeris, Spice};
 use crate::error::{toml_message, Error, Result};
 use crate::radiometry::reflectance::{MappedParameter, Reflectance, ReflectanceConfig};
 use crate::radiometry::spectrum::{Response, SolarSpectrum, Table};
-use crate::render::RenderSettings;
+use crate::render_settings::RenderSettings;
 pub use camera::Pinhole;
 pub use maps::{EquirectMap, NormalMap};
 
@@ -646,7 +646,7 @@ impl Scene {
         file.render.check()?;
         // The exact filter's table is built now rather than in the first
         // frame; with the map samples it is never built (16.8 MB for 2k).
-        if file.render.map_filter != crate::render::MapFilter::Samples {
+        if file.render.map_filter != crate::render_settings::MapFilter::Samples {
             if let Some(map) = &body.albedo_map {
                 map.prepare_filters();
             }

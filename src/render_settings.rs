@@ -1,0 +1,171 @@
+//! The renderer's settings (the `[render]` table of a scene file): how
+//! finely the body is sampled, how the map is filtered, how interior
+//! pixels are integrated. Their own home, read by the scene file
+//! ([`crate::scene`]), the renderer ([`crate::render`]) and the facility's
+//! frame-time governor, so that the scene does not depend on the renderer.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// Default spacing [px] of the interior pixels' node lattice.
+pub const DEFAULT_NODE_SPACING: usize = 4;
+/// Default estimated quadrature error up to which an interior pixel keeps
+/// one point.
+pub const DEFAULT_PIXEL_TOLERANCE: f64 = 1e-4;
+
+/// How finely the body is sampled (the `[render]` table of a scene file).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderSettings {
+    /// Caps per pixel along each image axis. Omitted: [`DEFAULT_DENSITY`],
+    /// chosen from the benchmark's error curve (see BENCHMARKS.md).
+    pub caps_per_pixel: Option<f64>,
+    /// Minimum number of caps across the lit, visible lune, whatever the
+    /// apparent size: along θ over its whole range, along φ across its
+    /// widest row (shorter rows pro rata of their arc). Keeps the total flux
+    /// of unresolved bodies exact to the flux tolerance.
+    pub min_caps: usize,
+    /// `exact` (finite-distance geometry for every cap) or `distant` (the
+    /// paper's far-field limit: one view and Sun direction for all caps).
+    pub geometry: GeometryMode,
+    /// Sub-bands for spectrally varying reflectance; omitted: automatic.
+    pub sub_bands: Option<usize>,
+    /// Albedo-map samples per cap along each axis (1–4): the map varies at
+    /// pixel scale while the BRDF does not, so each cap's PF is split over
+    /// k×k parts of its footprint by the map alone.
+    pub texture_samples: usize,
+    /// How a pixel's or cap's albedo is averaged over its map footprint:
+    /// `exact` (the bilinear map's exact mean over the footprint
+    /// parallelogram), `samples` (k×k samples, `texture_samples`) or
+    /// `adaptive` (the samples, and the exact mean where their spread
+    /// exceeds `map_tolerance`).
+    pub map_filter: MapFilter,
+    /// The adaptive filter's threshold: where the k×k samples' range
+    /// (max − min) reaches this fraction of their mean, the footprint
+    /// takes the exact mean. 0: always exact; above k² never (for a
+    /// non-negative map). In [0, 100].
+    pub map_tolerance: f64,
+    /// `pixels` (default): pixels whose whole preimage is lit and visible
+    /// are integrated per pixel ([`crate::render::interior`]), the rest by the lune's caps;
+    /// `caps`: the lune's caps everywhere.
+    pub interior: Interior,
+    /// Spacing [px] of the lattice on which interior pixels evaluate their
+    /// smooth factors (geometry, reflectance model, map footprint) and
+    /// interpolate them (`interior::Lattice`); 1 evaluates every pixel.
+    pub node_spacing: usize,
+    /// Estimated relative error of an interior pixel's quadrature up to
+    /// which it keeps one point (then 2×2, then 4×4 Gauss points). Only
+    /// pixels near the limb reach it; default
+    /// [`DEFAULT_PIXEL_TOLERANCE`].
+    pub pixel_tolerance: f64,
+}
+
+/// How the pixels inside the lit disk are integrated.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Interior {
+    /// One cap per pixel: the pixel's preimage.
+    #[default]
+    Pixels,
+    /// The lune's caps, gridded exactly.
+    Caps,
+}
+
+/// Default threshold of the adaptive map filter
+/// ([`RenderSettings::map_tolerance`]), from the benchmark's curve.
+pub const DEFAULT_MAP_TOLERANCE: f64 = 0.05;
+
+/// Default caps per pixel along each axis.
+pub const DEFAULT_DENSITY: f64 = 1.0;
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            caps_per_pixel: None,
+            min_caps: 128,
+            geometry: GeometryMode::Exact,
+            sub_bands: None,
+            texture_samples: 2,
+            map_filter: MapFilter::Samples,
+            map_tolerance: DEFAULT_MAP_TOLERANCE,
+            interior: Interior::Pixels,
+            node_spacing: DEFAULT_NODE_SPACING,
+            pixel_tolerance: DEFAULT_PIXEL_TOLERANCE,
+        }
+    }
+}
+
+impl RenderSettings {
+    /// Reject out-of-range values, naming the key.
+    pub fn check(&self) -> Result<()> {
+        if let Some(d) = self.caps_per_pixel {
+            if !(d.is_finite() && d > 0.0 && d <= 64.0) {
+                return Err(Error::invalid(
+                    "render.caps_per_pixel",
+                    "must be in (0, 64]",
+                ));
+            }
+        }
+        if self.min_caps == 0 || self.min_caps > 100_000 {
+            return Err(Error::invalid("render.min_caps", "must be in 1..=100000"));
+        }
+        if !(1..=4).contains(&self.texture_samples) {
+            return Err(Error::invalid("render.texture_samples", "must be in 1..=4"));
+        }
+        if !(self.map_tolerance >= 0.0 && self.map_tolerance <= 100.0) {
+            return Err(Error::invalid(
+                "render.map_tolerance",
+                "must be in [0, 100]",
+            ));
+        }
+        if !(1..=16).contains(&self.node_spacing) {
+            return Err(Error::invalid("render.node_spacing", "must be in 1..=16"));
+        }
+        if !(self.pixel_tolerance >= 1e-6 && self.pixel_tolerance <= 1e-2) {
+            return Err(Error::invalid(
+                "render.pixel_tolerance",
+                "must be in [1e-6, 1e-2]",
+            ));
+        }
+        if let Some(n) = self.sub_bands {
+            if n == 0 || n > 1000 {
+                return Err(Error::invalid("render.sub_bands", "must be in 1..=1000"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Caps per pixel in use.
+    pub fn density(&self) -> f64 {
+        self.caps_per_pixel.unwrap_or(DEFAULT_DENSITY)
+    }
+}
+
+/// How the albedo map is averaged over a pixel's or cap's footprint.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum MapFilter {
+    /// The exact mean of the map's bilinear interpolant over the footprint
+    /// parallelogram ([`crate::scene::EquirectMap::parallelogram_mean`]);
+    /// caps take it over each of their k×k parts.
+    Exact,
+    /// k×k bilinear samples or box averages (`texture_samples`).
+    #[default]
+    Samples,
+    /// The k×k samples where their range is below `map_tolerance` of
+    /// their mean, else the exact mean: the samples' spread estimates the
+    /// detail the footprint holds.
+    Adaptive,
+}
+
+/// Geometry of the cap integrals.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum GeometryMode {
+    /// Each cap has its own view vector, Sun vector and distances; the
+    /// visible cap shrinks at close range.
+    Exact,
+    /// The paper's distant-observer form (far-field limit).
+    Distant,
+}
