@@ -1,5 +1,6 @@
 //! Timing figure of a frame log (`optistim plot-log`): state → present
 //! latency against the frame's presentation time, missed deadlines in red,
+//! frames on time coloured by the governor's rung when it governed,
 //! and the latency histogram with its nearest-rank p50 and p99 (the same
 //! statistics as the run summary, [`LatencyStats::from_samples`]).
 
@@ -9,7 +10,7 @@ use plotters::style::RGBColor;
 
 use crate::error::{Error, Result};
 use crate::facility::log::{FrameRecord, LatencyStats};
-use crate::figures::{curve_and_histogram, CurveAndHistogram, Histogram, Panel, Series};
+use crate::figures::{curve_and_histogram, CurveAndHistogram, Histogram, Panel, Series, PALETTE};
 
 /// Pixel size of `timing.png`.
 pub const TIMING_FIGURE_SIZE: (u32, u32) = (1100, 800);
@@ -26,6 +27,9 @@ pub struct RunTiming {
     pub safe_frames: usize,
     /// `(t_presented [s], latency [ms])` of frames on time / late.
     pub on_time: Vec<(f64, f64)>,
+    /// The governor's rung of each frame on time, in `on_time`'s order
+    /// (empty when the run was not governed).
+    pub on_time_rungs: Vec<usize>,
     pub late: Vec<(f64, f64)>,
     /// Over all frames with a state, ms.
     pub latency_ms: LatencyStats,
@@ -59,6 +63,7 @@ impl RunTiming {
             missed: mine.iter().filter(|r| r.missed).count(),
             safe_frames: mine.iter().filter(|r| r.safe_frame).count(),
             on_time: Vec::new(),
+            on_time_rungs: Vec::new(),
             late: Vec::new(),
             latency_ms: LatencyStats::default(),
         };
@@ -68,7 +73,10 @@ impl RunTiming {
                 if r.missed {
                     t.late.push(p)
                 } else {
-                    t.on_time.push(p)
+                    t.on_time.push(p);
+                    if let Some(f) = r.fidelity {
+                        t.on_time_rungs.push(f.rung);
+                    }
                 }
             }
         }
@@ -76,6 +84,33 @@ impl RunTiming {
         t.latency_ms = LatencyStats::from_samples(&all);
         t
     }
+}
+
+/// Frames on time (one series per governor rung when governed), then the
+/// missed ones in red.
+fn latency_series(timing: &RunTiming) -> Vec<Series> {
+    let mut series = Vec::new();
+    if timing.on_time_rungs.len() == timing.on_time.len() && !timing.on_time_rungs.is_empty() {
+        let top = timing.on_time_rungs.iter().copied().max().unwrap_or(0);
+        for rung in 0..=top {
+            let points: Vec<(f64, f64)> = timing
+                .on_time
+                .iter()
+                .zip(&timing.on_time_rungs)
+                .filter(|(_, &r)| r == rung)
+                .map(|(p, _)| *p)
+                .collect();
+            if !points.is_empty() {
+                let colour = PALETTE[rung % PALETTE.len()];
+                let label = format!("on time, governor rung {rung}");
+                series.push(Series::points(label, points).with_colour(colour));
+            }
+        }
+    } else {
+        series.push(Series::points("on time", timing.on_time.clone()));
+    }
+    series.push(Series::points("missed deadline", timing.late.clone()).with_colour(MISSED_RED));
+    series
 }
 
 /// Writes the timing figure of `timing` to `path`.
@@ -105,10 +140,7 @@ pub fn write_timing_figure(path: &Path, timing: &RunTiming) -> Result<()> {
         main: Panel {
             y_label: "state → present latency (ms)".into(),
             log_y: false,
-            series: vec![
-                Series::points("on time", timing.on_time.clone()),
-                Series::points("missed deadline", timing.late.clone()).with_colour(MISSED_RED),
-            ],
+            series: latency_series(timing),
         },
         histogram: Histogram {
             x_label: "state → present latency (ms)".into(),
