@@ -485,7 +485,7 @@ fn non_linearity_at_half_and_full_well() {
         uniform(&linear, 255);
         let e_lin = capture(&linear, exposure * 0.01, Shutter::Open)[15 * 40 + 20] / 0.05;
         let fw = e_lin / fill * 1.0001;
-        let text = toml("", "", &format!("shot_noise = false\nnonlinearity = 0.01"))
+        let text = toml("", "", "shot_noise = false\nnonlinearity = 0.01")
             .replace("full_well = 1.0e9", &format!("full_well = {fw:e}"));
         let f = facility(&text);
         uniform(&f, 255);

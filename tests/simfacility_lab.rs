@@ -161,10 +161,10 @@ fn lab_camera_flat_has_its_declared_noise_and_low_order_error() {
     let mut b = [0.0; 4];
     for (k, r) in ratio.iter().enumerate() {
         let p = basis(k);
-        for i in 0..4 {
-            b[i] += p[i] * r;
-            for j in 0..4 {
-                a[i][j] += p[i] * p[j];
+        for ((row, bi), pi) in a.iter_mut().zip(b.iter_mut()).zip(p) {
+            *bi += pi * r;
+            for (x, pj) in row.iter_mut().zip(p) {
+                *x += pi * pj;
             }
         }
     }
@@ -196,12 +196,13 @@ fn solve4(mut a: [[f64; 4]; 4], mut b: [f64; 4]) -> [f64; 4] {
             .unwrap();
         a.swap(i, p);
         b.swap(i, p);
+        let (pivot, bi) = (a[i], b[i]);
         for r in i + 1..4 {
-            let f = a[r][i] / a[i][i];
-            for c in i..4 {
-                a[r][c] -= f * a[i][c];
+            let f = a[r][i] / pivot[i];
+            for (x, p) in a[r].iter_mut().zip(pivot).skip(i) {
+                *x -= f * p;
             }
-            b[r] -= f * b[i];
+            b[r] -= f * bi;
         }
     }
     let mut x = [0.0; 4];

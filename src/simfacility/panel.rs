@@ -52,7 +52,7 @@ impl Panel {
             crosstalk: c.crosstalk,
         };
         let n = c.levels() - 1;
-        for ch in 0..3 {
+        for (ch, name) in CHANNELS.iter().enumerate() {
             let mut last = 0.0;
             for level in 0..=n {
                 let t = panel.tone(ch, level as f64 / n as f64);
@@ -60,8 +60,7 @@ impl Panel {
                     return Err(Error::invalid(
                         "screen.shoulder",
                         format!(
-                            "the {} channel's tone curve decreases at level {level}: reduce shoulder or toe",
-                            CHANNELS[ch]
+                            "the {name} channel's tone curve decreases at level {level}: reduce shoulder or toe"
                         ),
                     ));
                 }
