@@ -4,6 +4,7 @@ mod bench;
 pub mod bench_plot;
 pub mod calibrate;
 pub mod plot_log;
+pub mod sim_lab;
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -131,6 +132,10 @@ pub struct RunArgs {
     /// `--display sim-facility`.
     #[arg(long)]
     pub sim_facility: Option<std::path::PathBuf>,
+    /// The simulated facility's clock file (JSON, docs/SIMFACILITY.md):
+    /// virtual time continues from it and is saved back at the end.
+    #[arg(long, requires = "sim_facility")]
+    pub sim_clock: Option<std::path::PathBuf>,
     /// Where the simulated camera's frames go (16-bit PNG), for
     /// `--display sim-facility`.
     #[arg(long, default_value = "out/captures")]
@@ -309,6 +314,11 @@ fn run_on_display(
                 .as_ref()
                 .context("--display sim-facility needs --sim-facility FILE")?;
             let facility = optistim::simfacility::SimFacility::load(path)?;
+            let _clock = args
+                .sim_clock
+                .as_deref()
+                .map(|p| optistim::simfacility::clock::SimClock::attach(&facility, p))
+                .transpose()?;
             let mut display = optistim::simfacility::RecordingScreen::new(
                 &facility,
                 &args.captures,

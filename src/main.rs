@@ -92,6 +92,10 @@ enum Command {
     /// `flat` (flat field), `geometric` (geometry file), `verify`
     /// (docs/CALIBRATION.md).
     Calibrate(cli::calibrate::CalibrateArgs),
+    /// Write the simulated facility camera's lab products (intrinsics,
+    /// own flat, absolute responsivity, with their errors and declared
+    /// uncertainties) into a directory (docs/SIMFACILITY.md).
+    SimLab(cli::sim_lab::SimLabArgs),
     /// Draw the timing figure of a frame log: DIR/timing.png (latency
     /// over time with missed deadlines, histogram with p50/p99).
     PlotLog(cli::plot_log::PlotLogArgs),
@@ -139,6 +143,7 @@ fn main() -> ExitCode {
         Command::Run(args) => cli::run(&args),
         Command::Calibrate(args) => cli::calibrate::calibrate(&args),
         Command::PlotLog(args) => cli::plot_log::plot_log(&args),
+        Command::SimLab(args) => cli::sim_lab::sim_lab(&args),
         Command::Render {
             scene,
             out,

@@ -116,8 +116,11 @@ fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent()
 
 /// The flat field of the simulated facility, with the geometry written from
 /// the facility's true map and its camera's own flat, has the shape of the
-/// facility's true non-uniformity (falloff and gradient): the ratio of the
-/// recovered gain to the truth is constant over the area the camera sees.
+/// facility's true smooth non-uniformity (falloff and gradient): the ratio
+/// of the recovered gain to the truth is constant over the area the camera
+/// sees. The mura is off here: its 20–200 px periods are beyond the flat's
+/// degree-4 polynomial (with the bundled 0.3 % rms the ratio spreads by
+/// 1.7 %, tests/closed_loop.rs sees what that costs).
 #[test]
 fn flat_field_recovers_the_simulated_screen_non_uniformity() {
     use optistim::calibration::flat::{self, FlatSetup};
@@ -131,7 +134,8 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
         .replace("fy = 10247.4", "fy = 1280.925")
         .replace("cx = 512.0", "cx = 64.0")
         .replace("cy = 512.0", "cy = 64.0")
-        .replace("supersample = 3", "supersample = 4");
+        .replace("supersample = 3", "supersample = 4")
+        .replace("mura_rms = 0.003", "mura_rms = 0.0");
     let mut scfg = SimFacilityConfig::parse(&text, path).unwrap();
     scfg.resolve_paths(Path::new("configs"));
     let sim = SimFacility::new(scfg).unwrap();

@@ -419,9 +419,11 @@ fn warm_up_and_drift_follow_the_virtual_clock() {
 }
 
 #[test]
-fn dark_levels_shift_the_spectrum_toward_the_blue() {
-    // Flat 380–780 nm white shifted 10 nm blue at level 0: the camera band
-    // (450–820 nm) then sees 450–770 nm of it.
+fn the_black_leak_is_shifted_toward_the_blue() {
+    // Flat 380–780 nm white; the black leak (1 % of full white) is that
+    // spectrum shifted 10 nm blue, so the camera band (450–820 nm) sees
+    // 450–770 nm of it. Level 0 is the leak alone; full white is 99 %
+    // channels (the unshifted white) plus the leak.
     let cfg = toml("", "").replace(
         "spectrum = \"flat\"",
         "spectrum = \"flat\"\nspectral_shift_nm = 10.0",
@@ -429,11 +431,11 @@ fn dark_levels_shift_the_spectrum_toward_the_blue() {
     let f = SimFacility::new(SimFacilityConfig::parse(&cfg, "t.toml").unwrap()).unwrap();
     let sun_ratio = planck_band(|_| 1.0) / planck_band(|l| l / (H * C));
     let shifted = (770e-9f64.powi(2) - 450e-9f64.powi(2)) / (2.0 * H * C);
-    let expected = spectral_level(0.0) * shifted * sun_ratio;
+    let a = 2.0 / 400e-9;
+    let expected = a * 0.01 * shifted * sun_ratio;
     let got = f.true_camera_effective_radiance(0, (32.0, 24.0));
     assert!((got / expected - 1.0).abs() < 1e-6, "{got} vs {expected}");
-    // Full white is not shifted.
-    let white = spectral_level(255.0) * photons_per_flat() * sun_ratio;
+    let white = a * (0.99 * photons_per_flat() + 0.01 * shifted) * sun_ratio;
     let got = f.true_camera_effective_radiance(255, (32.0, 24.0));
     assert!((got / white - 1.0).abs() < 1e-6, "{got} vs {white}");
 }

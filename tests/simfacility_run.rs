@@ -92,6 +92,11 @@ fn spectroradiometer_over_a_pty_sends_the_screen_spectrum() {
     let mut cfg = bundled();
     cfg.meter.noise = 0.0;
     cfg.meter.spectrometer = true;
+    // The true spectrum: no wavelength error, no bin noise, an unshifted
+    // black leak.
+    cfg.meter.wavelength_error_nm = 0.0;
+    cfg.meter.spectrum_noise = 0.0;
+    cfg.screen.spectral_shift_nm = 0.0;
     let facility = SimFacility::new(cfg).unwrap();
     let spec = meter_config(Path::new("/dev/null"), "spectrum", 1.0).reply;
     let pty = PtyMeter::start(&facility, "MEAS\r\n", &spec, 1.0).unwrap();
@@ -103,8 +108,9 @@ fn spectroradiometer_over_a_pty_sends_the_screen_spectrum() {
     let reading = meter.measure().unwrap();
     let spectrum = reading.spectrum.expect("a spectrum");
     assert_eq!(spectrum.len(), 81);
-    // At full white (no spectral shift) the spectrum is the bundled white's
-    // shape, read here from the data file, times one scale.
+    // At full white (every channel's emission 1, the leak unshifted) the
+    // spectrum is the bundled white's shape, read here from the data file,
+    // times one scale.
     let file = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("data/display/lcd_white_apple_studio_display.csv"),

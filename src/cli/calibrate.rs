@@ -44,6 +44,9 @@ pub struct CalibrateArgs {
     /// screen and instruments (docs/SIMFACILITY.md).
     #[arg(long)]
     pub sim_facility: Option<PathBuf>,
+    /// The simulated facility's clock file (docs/SIMFACILITY.md).
+    #[arg(long, requires = "sim_facility")]
+    pub sim_clock: Option<PathBuf>,
     /// Output directory (default: `calibrate.out_dir`).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -161,6 +164,11 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
     };
     let fp = fingerprint(&table, name, fac.screen_size(), bits);
     let mut rig = open_rig(args, &fac, &cfg)?;
+    let _clock = match (&args.sim_clock, &rig.sim) {
+        (Some(p), Some(sim)) => Some(optistim::simfacility::clock::SimClock::attach(sim, p)?),
+        _ => None,
+    };
+    _clock.as_ref().map(|c| c.save_on_interrupt()).transpose()?;
     if args.routine == Routine::Geometric {
         return run_geometric(&cfg, &args.facility, &mut rig);
     }

@@ -16,9 +16,11 @@
 //! shifts smaller than the sample spacing visible (point samples of the
 //! screen's piecewise-constant image would alias them away). Without distortion A Ω cos θ is exactly the
 //! renderer's factor (`render::detector`: pupil area × exact Ω × dir.z), so
-//! the two agree. Then dark electrons, shot noise (Poisson), read noise
-//! (Gaussian), clipping at the full well, gain, bias, rounding and
-//! clipping at the largest DN.
+//! the two agree. Veiling glare adds `veiling_glare` × the image's mean
+//! signal to every pixel. Then dark electrons, shot noise (Poisson),
+//! clipping at the full well, the non-linearity e (1 − β e / full_well),
+//! read noise (Gaussian) and a per-row offset (Gaussian, the same along a
+//! row of one frame), gain, bias, rounding and clipping to [0, largest DN].
 
 use rayon::prelude::*;
 
@@ -32,6 +34,8 @@ use crate::error::{Error, Result};
 const PRNU_STREAM: u64 = 1;
 /// Random streams of captures start here (+ capture index).
 const CAPTURE_STREAM: u64 = 1 << 32;
+/// Random streams of captures' row offsets start here (+ capture index).
+const ROW_STREAM: u64 = 1 << 40;
 
 /// A frame the screen showed during an exposure, with its share of it.
 #[derive(Debug, Clone)]
@@ -149,7 +153,8 @@ impl CameraModel {
         sum / (n * n) as f64
     }
 
-    /// Mean signal electrons per pixel (no dark, no noise, no clipping).
+    /// Mean signal electrons per pixel, veiling glare included (no dark,
+    /// no noise, no clipping).
     pub fn expected_electrons(
         &self,
         screen: &ScreenPhysics,
@@ -160,13 +165,19 @@ impl CameraModel {
         let (w, h) = self.size();
         let image = screen_image(screen, frames);
         let [sw, sh] = screen.config().resolution;
-        (0..w * h)
+        let mut signal: Vec<f64> = (0..w * h)
             .into_par_iter()
             .map(|k| {
                 let rate = self.mean_rate(k % w, k / w, &image, (sw, sh));
                 exposure * transmission * self.etendue[k] * self.flat[k] as f64 * rate
             })
-            .collect()
+            .collect();
+        if self.cfg.veiling_glare > 0.0 {
+            let pedestal =
+                self.cfg.veiling_glare * signal.iter().sum::<f64>() / signal.len() as f64;
+            signal.iter_mut().for_each(|s| *s += pedestal);
+        }
+        signal
     }
 
     /// One frame in DN: signal plus dark, noise (seeded by `seed` and
@@ -184,21 +195,28 @@ impl CameraModel {
         let signal = self.expected_electrons(screen, transmission, frames, exposure);
         let dark = c.dark_current * exposure;
         let max_dn = c.max_dn();
+        let w = c.resolution[0];
+        let rows: Vec<f64> = (0..c.resolution[1] as u64)
+            .map(|j| c.row_noise * Rng::new(seed, ROW_STREAM + index, j).normal())
+            .collect();
         signal
             .into_par_iter()
             .enumerate()
             .map(|(k, s)| {
                 let mut rng = Rng::new(seed, CAPTURE_STREAM + index, k as u64);
                 let mean = s + dark;
-                let mut e = if c.shot_noise {
+                let e = if c.shot_noise {
                     rng.poisson(mean)
                 } else {
                     mean
                 };
-                if c.read_noise > 0.0 {
-                    e += c.read_noise * rng.normal();
-                }
-                let e = e.clamp(0.0, c.full_well);
+                let e = c.response(e.clamp(0.0, c.full_well));
+                let read = if c.read_noise > 0.0 {
+                    c.read_noise * rng.normal()
+                } else {
+                    0.0
+                };
+                let e = e + read + rows[k / w];
                 (e * c.gain + c.bias_dn).round().clamp(0.0, max_dn) as f32
             })
             .collect()
@@ -209,15 +227,18 @@ impl CameraModel {
 /// [e⁻ s⁻¹ m⁻² sr⁻¹]: what the camera's samples interpolate.
 fn screen_image(screen: &ScreenPhysics, frames: &[WindowFrame]) -> Vec<f32> {
     let [sw, sh] = screen.config().resolution;
+    let rate = &screen.camera_rate_split;
+    let (main, leak) = (&screen.pattern.main_map, &screen.pattern.leak_map);
     let mut image = vec![0.0f32; sw * sh];
     image.par_chunks_mut(sw).enumerate().for_each(|(y, row)| {
         for (x, out) in row.iter_mut().enumerate() {
             let p = y * sw + x;
+            let (um, ul) = (main[p] as f64, leak[p] as f64);
             let shown: f64 = frames
                 .iter()
-                .map(|f| f.weight * f.warmup * screen.camera_rate[f.levels[p] as usize])
+                .map(|f| f.weight * f.warmup * rate.at(f.levels[p] as usize, um, ul))
                 .sum();
-            *out = (shown * screen.uniformity(x as f64 + 0.5, y as f64 + 0.5)) as f32;
+            *out = shown as f32;
         }
     });
     image

@@ -35,6 +35,9 @@ pub struct SimFacilityConfig {
     pub collimator: CollimatorTruth,
     pub camera: CameraTruth,
     pub meter: MeterTruth,
+    /// The declared uncertainties of the camera's lab products.
+    #[serde(default)]
+    pub lab: LabTruth,
 }
 
 /// The screen's physical truth.
@@ -59,10 +62,44 @@ pub struct ScreenTruth {
     /// White spectrum: a CSV (`wavelength_nm, relative`) or `"flat"`
     /// (equal energy over 380–780 nm).
     pub spectrum: String,
-    /// nm: the spectrum's shift toward the blue at level 0 (linear in the
-    /// normalised level, zero at full white).
+    /// nm: the black leak's spectrum is the white one shifted this far
+    /// toward the blue (the liquid crystal's leakage is not neutral).
     #[serde(default)]
     pub spectral_shift_nm: f64,
+    /// nm: the edges blue|green and green|red of the primaries' windows.
+    #[serde(default = "default_primary_edges")]
+    pub primary_edges_nm: [f64; 2],
+    /// nm: the windows' logistic edge width.
+    #[serde(default = "default_primary_width")]
+    pub primary_edge_width_nm: f64,
+    /// Per channel (R, G, B): γ_c − `gamma`.
+    #[serde(default)]
+    pub channel_gamma_delta: [f64; 3],
+    /// Per channel: the linear toe's weight near black.
+    #[serde(default)]
+    pub toe: [f64; 3],
+    /// The toe's extent, in normalised drive.
+    #[serde(default = "default_toe_width")]
+    pub toe_width: f64,
+    /// Per channel: the shoulder's relative compression at full drive.
+    #[serde(default)]
+    pub shoulder: [f64; 3],
+    /// Fraction of each channel's light leaking into each other channel.
+    #[serde(default)]
+    pub crosstalk: f64,
+    /// Relative rms of the mid-spatial-frequency mura.
+    #[serde(default)]
+    pub mura_rms: f64,
+    /// px: the range of the mura's periods.
+    #[serde(default = "default_mura_periods")]
+    pub mura_periods_px: [f64; 2],
+    /// Number of plane waves of the mura.
+    #[serde(default = "default_mura_waves")]
+    pub mura_waves: usize,
+    /// The black leak's relative excess at the screen's corners (n_x⁴ +
+    /// n_y⁴) / 2: dark levels are less uniform.
+    #[serde(default)]
+    pub black_nonuniformity: f64,
     /// Relative radiance drop from the centre to a corner.
     #[serde(default)]
     pub falloff: f64,
@@ -105,6 +142,16 @@ pub struct CollimatorTruth {
     /// boresight, positive from x toward y.
     #[serde(default)]
     pub rotation: f64,
+    /// Decentring distortion (Brown): Δa = 2 p1 a b + p2 (ρ² + 2 a²),
+    /// Δb = p1 (ρ² + 2 b²) + 2 p2 a b.
+    #[serde(default)]
+    pub p1: f64,
+    #[serde(default)]
+    pub p2: f64,
+    /// Thin-prism distortion (OpenCV's s1…s4): Δa += s1 ρ² + s2 ρ⁴,
+    /// Δb += s3 ρ² + s4 ρ⁴.
+    #[serde(default)]
+    pub thin_prism: [f64; 4],
 }
 
 /// A dimensionless spectral response: a constant or a CSV table.
@@ -174,6 +221,16 @@ pub struct CameraTruth {
     /// Sample points per axis per camera pixel.
     #[serde(default = "default_supersample")]
     pub supersample: usize,
+    /// Relative response deficit at full well: e' = e (1 − β e / full_well).
+    #[serde(default)]
+    pub nonlinearity: f64,
+    /// e⁻ rms of a per-row, per-frame offset.
+    #[serde(default)]
+    pub row_noise: f64,
+    /// Fraction of the mean signal in the image added to every pixel as a
+    /// uniform pedestal (veiling glare of the collimator and lens).
+    #[serde(default)]
+    pub veiling_glare: f64,
 }
 
 /// The spot meter.
@@ -199,10 +256,64 @@ pub struct MeterTruth {
     /// A spectroradiometer: readings carry the spectrum (380–780 nm, 5 nm).
     #[serde(default)]
     pub spectrometer: bool,
+    /// nm: the spectroradiometer's wavelength scale error (its value at
+    /// nominal λ is the true one at λ + error).
+    #[serde(default)]
+    pub wavelength_error_nm: f64,
+    /// Relative rms noise of each spectral bin.
+    #[serde(default)]
+    pub spectrum_noise: f64,
+}
+
+/// Declared uncertainties (k = 2) of what the camera's calibration lab
+/// delivers; each product's error is drawn from the seed within them.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LabTruth {
+    /// fx, fy, %.
+    pub focal_k2_percent: f64,
+    /// cx, cy, px.
+    pub principal_point_k2_px: f64,
+    /// k1 (absolute).
+    pub k1_k2: f64,
+    /// Per-pixel measurement noise of the camera flat, relative rms.
+    pub flat_pixel_noise: f64,
+    /// The camera flat's low-order error (tilt and bowl), relative, k = 2.
+    pub flat_low_order_k2: f64,
+    /// Absolute responsivity, %.
+    pub responsivity_k2_percent: f64,
+}
+
+impl Default for LabTruth {
+    fn default() -> Self {
+        LabTruth {
+            focal_k2_percent: 0.05,
+            principal_point_k2_px: 0.1,
+            k1_k2: 0.002,
+            flat_pixel_noise: 0.001,
+            flat_low_order_k2: 0.002,
+            responsivity_k2_percent: 1.5,
+        }
+    }
 }
 
 fn default_bits() -> u32 {
     8
+}
+fn default_primary_edges() -> [f64; 2] {
+    [490.0, 580.0]
+}
+fn default_primary_width() -> f64 {
+    12.0
+}
+fn default_toe_width() -> f64 {
+    0.05
+}
+fn default_mura_periods() -> [f64; 2] {
+    [20.0, 200.0]
+}
+fn default_mura_waves() -> usize {
+    24
 }
 fn default_warmup_time() -> f64 {
     600.0
@@ -306,6 +417,7 @@ impl ScreenTruth {
             -50.0,
             50.0,
         )?;
+        self.validate_panel()?;
         in_range("screen.falloff", self.falloff, 0.0, 0.5)?;
         in_range("screen.gradient", self.gradient[0], -0.3, 0.3)?;
         in_range("screen.gradient", self.gradient[1], -0.3, 0.3)?;
@@ -331,6 +443,52 @@ impl ScreenTruth {
             ));
         }
         Ok(())
+    }
+
+    fn validate_panel(&self) -> Result<()> {
+        let [e1, e2] = self.primary_edges_nm;
+        in_range("screen.primary_edges_nm", e1, 400.0, 700.0)?;
+        in_range("screen.primary_edges_nm", e2, 400.0, 700.0)?;
+        if e2 <= e1 {
+            return Err(Error::invalid(
+                "screen.primary_edges_nm",
+                "the green|red edge must exceed the blue|green edge",
+            ));
+        }
+        in_range(
+            "screen.primary_edge_width_nm",
+            self.primary_edge_width_nm,
+            1.0,
+            50.0,
+        )?;
+        for d in self.channel_gamma_delta {
+            in_range("screen.channel_gamma_delta", d, -0.5, 0.5)?;
+            in_range("screen.channel_gamma_delta", self.gamma + d, 0.5, 5.0)?;
+        }
+        for t in self.toe {
+            in_range("screen.toe", t, 0.0, 0.05)?;
+        }
+        in_range("screen.toe_width", self.toe_width, 0.005, 0.5)?;
+        for s in self.shoulder {
+            in_range("screen.shoulder", s, 0.0, 0.2)?;
+        }
+        in_range("screen.crosstalk", self.crosstalk, 0.0, 0.05)?;
+        in_range("screen.mura_rms", self.mura_rms, 0.0, 0.02)?;
+        let [p0, p1] = self.mura_periods_px;
+        in_range("screen.mura_periods_px", p0, 2.0, 1e4)?;
+        in_range("screen.mura_periods_px", p1, p0, 1e4)?;
+        if !(1..=256).contains(&self.mura_waves) {
+            return Err(Error::invalid(
+                "screen.mura_waves",
+                format!("{} is not in 1..=256", self.mura_waves),
+            ));
+        }
+        in_range(
+            "screen.black_nonuniformity",
+            self.black_nonuniformity,
+            -0.5,
+            1.0,
+        )
     }
 
     /// Number of drive levels.
@@ -359,7 +517,13 @@ impl CollimatorTruth {
             h as f64,
         )?;
         in_range("collimator.rotation", self.rotation, -0.5, 0.5)?;
-        // The distortion must stay monotone over the screen: d tanθ / dρ > 0.
+        in_range("collimator.p1", self.p1, -1.0, 1.0)?;
+        in_range("collimator.p2", self.p2, -1.0, 1.0)?;
+        for s in self.thin_prism {
+            in_range("collimator.thin_prism", s, -1e4, 1e4)?;
+        }
+        // The radial part must stay monotone over the screen: d tanθ / dρ > 0
+        // (the full distortion's Jacobian is checked when the facility is built).
         let rho = 0.5 * screen.pixel_pitch * ((w * w + h * h) as f64).sqrt() / self.focal_length
             + (self.offset_px[0].hypot(self.offset_px[1])) * screen.pixel_pitch / self.focal_length;
         let slope = 1.0 + 3.0 * self.k1 * rho * rho + 5.0 * self.k2 * rho.powi(4);
@@ -407,6 +571,9 @@ impl CameraTruth {
         in_range("camera.dark_current", self.dark_current, 0.0, 1e7)?;
         in_range("camera.vignetting", self.vignetting, 0.0, 0.9)?;
         in_range("camera.prnu", self.prnu, 0.0, 0.2)?;
+        in_range("camera.nonlinearity", self.nonlinearity, 0.0, 0.05)?;
+        in_range("camera.row_noise", self.row_noise, 0.0, 1e4)?;
+        in_range("camera.veiling_glare", self.veiling_glare, 0.0, 0.05)?;
         if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {
             return Err(Error::invalid(
                 "camera.supersample",
@@ -420,6 +587,20 @@ impl CameraTruth {
     pub fn pupil_area(&self) -> f64 {
         let d = self.focal_length / self.f_number;
         std::f64::consts::PI * d * d / 4.0
+    }
+
+    /// Collected electrons after the non-linearity: e (1 − β e / full_well).
+    pub fn response(&self, electrons: f64) -> f64 {
+        electrons * (1.0 - self.nonlinearity * electrons / self.full_well)
+    }
+
+    /// DN at or above which a pixel is saturated: a full well (after the
+    /// non-linearity) less four standard deviations of the read and row
+    /// noise, or the largest DN if that is lower.
+    pub fn saturation_dn(&self) -> f64 {
+        let noise = self.read_noise.hypot(self.row_noise);
+        let full = self.gain * (self.response(self.full_well) - 4.0 * noise) + self.bias_dn;
+        full.floor().clamp(1.0, self.max_dn())
     }
 
     /// Largest DN.
@@ -455,7 +636,35 @@ impl MeterTruth {
             (w.max(h)) as f64,
         )?;
         in_range("meter.integration_time", self.integration_time, 0.0, 3600.0)?;
+        in_range(
+            "meter.wavelength_error_nm",
+            self.wavelength_error_nm,
+            -5.0,
+            5.0,
+        )?;
+        in_range("meter.spectrum_noise", self.spectrum_noise, 0.0, 0.5)?;
         Ok(())
+    }
+}
+
+impl LabTruth {
+    fn validate(&self) -> Result<()> {
+        in_range("lab.focal_k2_percent", self.focal_k2_percent, 0.0, 10.0)?;
+        in_range(
+            "lab.principal_point_k2_px",
+            self.principal_point_k2_px,
+            0.0,
+            100.0,
+        )?;
+        in_range("lab.k1_k2", self.k1_k2, 0.0, 1.0)?;
+        in_range("lab.flat_pixel_noise", self.flat_pixel_noise, 0.0, 0.1)?;
+        in_range("lab.flat_low_order_k2", self.flat_low_order_k2, 0.0, 0.1)?;
+        in_range(
+            "lab.responsivity_k2_percent",
+            self.responsivity_k2_percent,
+            0.0,
+            50.0,
+        )
     }
 }
 
@@ -485,7 +694,8 @@ impl SimFacilityConfig {
         self.screen.validate()?;
         self.collimator.validate(&self.screen)?;
         self.camera.validate()?;
-        self.meter.validate(&self.screen)
+        self.meter.validate(&self.screen)?;
+        self.lab.validate()
     }
 
     /// Makes relative file paths relative to `dir`.

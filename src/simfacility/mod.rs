@@ -15,18 +15,26 @@
 //! | module | owns |
 //! |---|---|
 //! | [`config`] | the TOML file and its range checks |
-//! | [`screen`] | spectra, level → radiance curve, non-uniformity, warm-up; the per-level integrals |
+//! | [`screen`] | spectra, the black leak, warm-up; the per-level integrals |
+//! | [`panel`] | the colour channels: primaries, tone curves, crosstalk |
+//! | [`spatial`] | the screen's non-uniformity: falloff, gradient, mura, the black leak's pattern |
+//! | [`clock`] | the clock file that carries virtual time across commands |
+//! | [`lab`] | the camera's lab products (intrinsics, flat, responsivity) with their errors |
 //! | [`optics`] | camera intrinsics and distortion, collimator and misalignment |
 //! | [`camera`] | the camera's tables and detector chain |
 //! | [`noise`] | counter-based random numbers |
 //! | [`pty`] | the spot meter served over a pseudo-terminal in a real meter's line protocol |
 
 pub mod camera;
+pub mod clock;
 pub mod config;
+pub mod lab;
 pub mod noise;
 pub mod optics;
+pub mod panel;
 pub mod pty;
 pub mod screen;
+pub mod spatial;
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
@@ -46,6 +54,8 @@ use screen::{CameraResponse, MeterResponse, ScreenPhysics};
 
 /// Random stream of meter readings.
 const METER_STREAM: u64 = 2;
+/// Random streams of spectroradiometer bins start here (+ reading index).
+const SPECTRUM_STREAM: u64 = 1 << 48;
 
 /// The immutable part: the truth and its precomputed tables.
 struct Model {
@@ -55,6 +65,8 @@ struct Model {
     camera: CameraModel,
     /// Screen pixel indices inside the meter's spot.
     spot: Vec<usize>,
+    /// ∫_band E☉ dλ / ∫_band E☉ R dλ: L_eff per electron rate.
+    effective_per_rate: f64,
 }
 
 /// A frame on the screen from `start` (virtual s) until the next one.
@@ -92,8 +104,9 @@ impl SimFacility {
         cfg.validate()?;
         let response = CameraResponse::from_config(&cfg.camera)?;
         let meter = MeterResponse::from_config(&cfg.meter)?;
-        let screen = ScreenPhysics::new(&cfg.screen, &response, &meter)?;
+        let screen = ScreenPhysics::new(&cfg.screen, &response, &meter, cfg.seed)?;
         let collimator = Collimator::from_config(&cfg.screen, &cfg.collimator);
+        check_folds(&collimator, cfg.screen.resolution)?;
         let camera = CameraModel::new(&cfg.camera, &collimator, cfg.seed)?;
         let spot = spot_pixels(&cfg);
         let [w, h] = cfg.screen.resolution;
@@ -114,6 +127,7 @@ impl SimFacility {
                 collimator,
                 camera,
                 spot,
+                effective_per_rate: response.effective_per_rate,
             }),
             state: Arc::new(Mutex::new(state)),
         })
@@ -124,7 +138,8 @@ impl SimFacility {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// The configuration.
+    /// The configuration: the truth, for tests only (a campaign gets the
+    /// lab products of [`Self::write_lab_camera_files`] instead).
     pub fn config(&self) -> &SimFacilityConfig {
         &self.model.cfg
     }
@@ -137,6 +152,28 @@ impl SimFacility {
     /// Virtual time since power-on, s.
     pub fn now(&self) -> f64 {
         self.state().now
+    }
+
+    /// Sets virtual time since power-on (a clock file's value), s; a
+    /// value that is not finite and ≥ 0 is refused.
+    pub fn set_now(&self, seconds: f64) -> Result<()> {
+        if !(seconds.is_finite() && seconds >= 0.0) {
+            return Err(Error::invalid(
+                "seconds_since_power_on",
+                format!("{seconds} is not a finite number ≥ 0"),
+            ));
+        }
+        let mut st = self.state();
+        st.now = seconds;
+        // What was shown last stays up from the new time on.
+        if let Some(last) = st.frames.pop_back() {
+            st.frames.clear();
+            st.frames.push_back(Shown {
+                start: seconds,
+                levels: last.levels,
+            });
+        }
+        Ok(())
     }
 
     /// Lets virtual time pass (a settle time, a pause).
@@ -170,10 +207,13 @@ impl SimFacility {
     /// True camera-effective radiance (W m⁻² sr⁻¹, at the screen, before
     /// the collimator) of drive `level` at screen position (u, v), now
     /// (warm-up and drift included).
+    /// The channels and the black leak each carry their own pattern.
     pub fn true_camera_effective_radiance(&self, level: usize, screen_xy: (f64, f64)) -> f64 {
         let s = &self.model.screen;
-        let level = level.min(s.camera_effective.len() - 1);
-        s.camera_effective[level] * s.uniformity(screen_xy.0, screen_xy.1) * s.warmup(self.now())
+        let (u, v) = screen_xy;
+        s.camera_effective_split
+            .at(level, s.pattern.main(u, v), s.pattern.leak(u, v))
+            * s.warmup(self.now())
     }
 
     /// The direction (x/z, y/z) in the camera frame at zero attitude under
@@ -190,13 +230,14 @@ impl SimFacility {
     }
 
     /// The camera's own flat (vignetting × PRNU, without the cos⁴ law the
-    /// renderer also applies), row-major.
+    /// renderer also applies), row-major: the truth, for tests only (a
+    /// campaign's is [`Self::write_lab_camera_files`]' measured one).
     pub fn camera_flat(&self) -> Vec<f32> {
         self.model.camera.flat().to_vec()
     }
 
-    /// Writes the camera's own flat as a Gray32Float TIFF of the camera's
-    /// size.
+    /// Writes the camera's true own flat as a Gray32Float TIFF of the
+    /// camera's size (the truth, for tests only).
     pub fn write_camera_flat(&self, path: impl AsRef<Path>) -> Result<()> {
         let (w, h) = self.model.camera.size();
         FlatField::from_gains(w, h, self.camera_flat())?.save(path)
@@ -205,8 +246,8 @@ impl SimFacility {
     /// Writes the camera's intrinsics file (TOML `fx, fy, cx, cy, k1, k2,
     /// p1, p2, k3` with `cx, cy` in OpenCV's convention, pixel centres at
     /// integers, as OpenCV's calibration writes them: the project's
-    /// principal point − 0.5), what a campaign gets from the camera's own
-    /// calibration.
+    /// principal point − 0.5): the truth, for tests only (a campaign's is
+    /// [`Self::write_lab_camera_files`]').
     pub fn write_camera_intrinsics(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
         let c = &self.model.cfg.camera;
@@ -230,20 +271,18 @@ impl SimFacility {
     /// Noise-free meter reading of a uniform screen at `level`, now.
     pub fn true_meter_reading(&self, level: usize) -> f64 {
         let s = &self.model.screen;
-        let level = level.min(s.meter.len() - 1);
-        s.meter[level] * self.spot_uniformity() * s.warmup(self.now())
+        let (main, leak) = self.spot_uniformity();
+        s.meter_split.at(level, main, leak) * s.warmup(self.now())
     }
 
-    fn spot_uniformity(&self) -> f64 {
-        let w = self.model.cfg.screen.resolution[0];
-        let s = &self.model.screen;
-        let sum: f64 = self
-            .model
-            .spot
-            .iter()
-            .map(|&p| s.uniformity((p % w) as f64 + 0.5, (p / w) as f64 + 0.5))
-            .sum();
-        sum / self.model.spot.len().max(1) as f64
+    /// Mean U_main and U_leak over the meter's spot.
+    fn spot_uniformity(&self) -> (f64, f64) {
+        let p = &self.model.screen.pattern;
+        let n = self.model.spot.len().max(1) as f64;
+        let (main, leak) = self.model.spot.iter().fold((0.0, 0.0), |(m, l), &k| {
+            (m + p.main_map[k] as f64, l + p.leak_map[k] as f64)
+        });
+        (main / n, leak / n)
     }
 
     /// Stores a presented frame at the current time, then advances the
@@ -339,7 +378,7 @@ impl SimFacility {
             height,
             data,
             exposure_s: exposure,
-            saturation_dn: m.cfg.camera.max_dn() as f32,
+            saturation_dn: m.cfg.camera.saturation_dn() as f32,
         })
     }
 
@@ -352,7 +391,6 @@ impl SimFacility {
     /// One meter reading over [now − integration, now].
     fn read_meter(&self) -> SpotReading {
         let m = &self.model;
-        let w = m.cfg.screen.resolution[0];
         let (frames, index) = {
             let mut st = self.state();
             st.now += m.cfg.meter.integration_time;
@@ -361,39 +399,87 @@ impl SimFacility {
             st.readings += 1;
             (frames, st.readings - 1)
         };
-        // Weight of every level over the spot and the exposure.
+        // Weight of every level's channels, and of the leak, over the spot
+        // and the exposure.
         let mut weights = vec![0.0; m.screen.meter.len()];
+        let mut leak_weight = 0.0;
         let n = m.spot.len().max(1) as f64;
+        let pattern = &m.screen.pattern;
         for (levels, share, warmup) in &frames {
             for &p in &m.spot {
-                let u = m
-                    .screen
-                    .uniformity((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
-                weights[levels[p] as usize] += share * warmup * u / n;
+                weights[levels[p] as usize] += share * warmup * pattern.main_map[p] as f64 / n;
+                leak_weight += share * warmup * pattern.leak_map[p] as f64 / n;
             }
         }
+        let split = &m.screen.meter_split;
         let clean: f64 = weights
             .iter()
-            .zip(&m.screen.meter)
+            .zip(&split.main)
             .map(|(a, b)| a * b)
-            .sum();
+            .sum::<f64>()
+            + leak_weight * split.leak;
         let mut rng = Rng::new(m.cfg.seed, METER_STREAM, index);
         let factor = 1.0 + m.cfg.meter.noise * rng.normal();
-        let spectrum = m.cfg.meter.spectrometer.then(|| {
-            let mut total: Vec<(f64, f64)> = m.screen.meter_spectrum(0);
-            total.iter_mut().for_each(|p| p.1 = 0.0);
-            for (level, &wt) in weights.iter().enumerate().filter(|(_, w)| **w > 0.0) {
-                for (t, (_, v)) in total.iter_mut().zip(m.screen.meter_spectrum(level)) {
-                    t.1 += wt * v * factor;
-                }
-            }
-            total
-        });
+        let spectrum = m
+            .cfg
+            .meter
+            .spectrometer
+            .then(|| self.meter_spectrum(&weights, leak_weight, factor, index));
         SpotReading {
             value: clean * factor,
             spectrum,
         }
     }
+
+    /// A spectroradiometer's reading: the spot's spectrum at the
+    /// instrument's (shifted) wavelength scale, × the reading's `factor`
+    /// and per-bin noise.
+    fn meter_spectrum(
+        &self,
+        weights: &[f64],
+        leak_weight: f64,
+        factor: f64,
+        index: u64,
+    ) -> Vec<(f64, f64)> {
+        let m = &self.model;
+        let shift = m.cfg.meter.wavelength_error_nm;
+        let mut total: Vec<(f64, f64)> = m
+            .screen
+            .meter_spectrum(0, shift)
+            .iter()
+            .map(|&(nm, _, leak)| (nm, leak_weight * leak))
+            .collect();
+        for (level, &wt) in weights.iter().enumerate().filter(|(_, w)| **w > 0.0) {
+            for (t, (_, main, _)) in total.iter_mut().zip(m.screen.meter_spectrum(level, shift)) {
+                t.1 += wt * main;
+            }
+        }
+        let mut rng = Rng::new(m.cfg.seed, SPECTRUM_STREAM + index, 0);
+        let noise = m.cfg.meter.spectrum_noise;
+        for t in total.iter_mut() {
+            t.1 *= factor * (1.0 + noise * rng.normal());
+        }
+        total
+    }
+}
+
+/// The collimator's distortion must not fold over on the screen: its
+/// Jacobian's determinant stays positive on a 17 × 17 grid including the
+/// corners.
+fn check_folds(c: &Collimator, [w, h]: [usize; 2]) -> Result<()> {
+    for j in 0..=16 {
+        for i in 0..=16 {
+            let (u, v) = (w as f64 * i as f64 / 16.0, h as f64 * j as f64 / 16.0);
+            let det = c.jacobian_det(u, v);
+            if !(det > 0.05) {
+                return Err(Error::invalid(
+                    "collimator.thin_prism",
+                    format!("the distortion (k1, k2, p1, p2, thin_prism) folds over at screen ({u}, {v})"),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Screen pixels whose centres lie in the meter's spot (at least the one

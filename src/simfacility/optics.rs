@@ -4,11 +4,16 @@
 //!
 //! Screen → camera (the truth a geometry file approximates): screen pixel
 //! (u, v) → offset from the collimator axis s = ((u, v) − (w/2, h/2) −
-//! offset_px) · pitch → ρ = s / f_coll → tan = ρ (1 + k1 |ρ|² + k2 |ρ|⁴) in
-//! the screen's axes → turned by `rotation` into the camera frame: the
-//! camera sees the point at (tan_x, tan_y) = x/z, y/z. Camera pixel →
-//! screen inverts each step (the OpenCV distortion and the collimator's by
-//! iteration).
+//! offset_px) · pitch → (a, b) = s / f_coll, r² = a² + b² → in the
+//! screen's axes
+//!
+//! a' = a (1 + k1 r² + k2 r⁴) + 2 p1 a b + p2 (r² + 2 a²) + s1 r² + s2 r⁴
+//! b' = b (1 + k1 r² + k2 r⁴) + p1 (r² + 2 b²) + 2 p2 a b + s3 r² + s4 r⁴
+//!
+//! (radial, Brown decentring and thin prism) → turned by `rotation` into
+//! the camera frame: the camera sees the point at (tan_x, tan_y) = x/z,
+//! y/z. Camera pixel → screen inverts each step (the OpenCV distortion by
+//! fixed-point iteration, the collimator's by Newton's method).
 
 use super::config::{CameraTruth, CollimatorTruth, ScreenTruth};
 
@@ -85,6 +90,9 @@ pub struct Collimator {
     f_px: f64,
     k1: f64,
     k2: f64,
+    p1: f64,
+    p2: f64,
+    prism: [f64; 4],
     /// Screen position of the optical axis, px.
     axis: (f64, f64),
     rotation: f64,
@@ -98,6 +106,9 @@ impl Collimator {
             f_px: c.focal_length / screen.pixel_pitch,
             k1: c.k1,
             k2: c.k2,
+            p1: c.p1,
+            p2: c.p2,
+            prism: c.thin_prism,
             axis: (
                 0.5 * w as f64 + c.offset_px[0],
                 0.5 * h as f64 + c.offset_px[1],
@@ -110,13 +121,51 @@ impl Collimator {
         1.0 + self.k1 * r2 + self.k2 * r2 * r2
     }
 
+    /// The distortion (a, b) → (a', b') in the screen's axes.
+    fn distort(&self, a: f64, b: f64) -> (f64, f64) {
+        let r2 = a * a + b * b;
+        let k = self.radial(r2);
+        let [s1, s2, s3, s4] = self.prism;
+        (
+            a * k + 2.0 * self.p1 * a * b + self.p2 * (r2 + 2.0 * a * a) + s1 * r2 + s2 * r2 * r2,
+            b * k + self.p1 * (r2 + 2.0 * b * b) + 2.0 * self.p2 * a * b + s3 * r2 + s4 * r2 * r2,
+        )
+    }
+
+    /// Jacobian of [`Self::distort`]: [[∂a'/∂a, ∂a'/∂b], [∂b'/∂a, ∂b'/∂b]].
+    fn jacobian(&self, a: f64, b: f64) -> [[f64; 2]; 2] {
+        let r2 = a * a + b * b;
+        let k = self.radial(r2);
+        let dk = 2.0 * self.k1 + 4.0 * self.k2 * r2; // ∂k/∂a = dk · a
+        let [s1, s2, s3, s4] = self.prism;
+        let (p1, p2) = (self.p1, self.p2);
+        [
+            [
+                k + dk * a * a + 2.0 * p1 * b + 6.0 * p2 * a + 2.0 * s1 * a + 4.0 * s2 * r2 * a,
+                dk * a * b + 2.0 * p1 * a + 2.0 * p2 * b + 2.0 * s1 * b + 4.0 * s2 * r2 * b,
+            ],
+            [
+                dk * a * b + 2.0 * p1 * a + 2.0 * p2 * b + 2.0 * s3 * a + 4.0 * s4 * r2 * a,
+                k + dk * b * b + 6.0 * p1 * b + 2.0 * p2 * a + 2.0 * s3 * b + 4.0 * s4 * r2 * b,
+            ],
+        ]
+    }
+
+    /// det of the distortion's Jacobian at screen position (u, v): it must
+    /// stay positive over the screen (no fold-over).
+    pub fn jacobian_det(&self, u: f64, v: f64) -> f64 {
+        let a = (u - self.axis.0) / self.f_px;
+        let b = (v - self.axis.1) / self.f_px;
+        let j = self.jacobian(a, b);
+        j[0][0] * j[1][1] - j[0][1] * j[1][0]
+    }
+
     /// Direction (tan_x, tan_y) in the camera frame at zero attitude under
     /// which the camera sees screen position (u, v).
     pub fn screen_to_tan(&self, u: f64, v: f64) -> (f64, f64) {
         let a = (u - self.axis.0) / self.f_px;
         let b = (v - self.axis.1) / self.f_px;
-        let k = self.radial(a * a + b * b);
-        let (a, b) = (a * k, b * k);
+        let (a, b) = self.distort(a, b);
         let (s, c) = self.rotation.sin_cos();
         (a * c - b * s, a * s + b * c)
     }
@@ -124,25 +173,23 @@ impl Collimator {
     /// Screen position (u, v) seen under camera direction (tan_x, tan_y).
     pub fn tan_to_screen(&self, tx: f64, ty: f64) -> (f64, f64) {
         let (s, c) = self.rotation.sin_cos();
-        let (a, b) = (tx * c + ty * s, -tx * s + ty * c);
-        // Solve ρ (1 + k1 ρ² + k2 ρ⁴) = |t| for ρ by Newton's method.
-        let t = a.hypot(b);
-        let mut rho = t;
-        for _ in 0..30 {
-            let r2 = rho * rho;
-            let f = rho * self.radial(r2) - t;
-            let d = 1.0 + 3.0 * self.k1 * r2 + 5.0 * self.k2 * r2 * r2;
-            let step = f / d;
-            rho -= step;
-            if step.abs() < 1e-16 {
+        let (ta, tb) = (tx * c + ty * s, -tx * s + ty * c);
+        // Solve distort(a, b) = (ta, tb) by Newton's method.
+        let (mut a, mut b) = (ta, tb);
+        for _ in 0..50 {
+            let (fa, fb) = self.distort(a, b);
+            let (ra, rb) = (fa - ta, fb - tb);
+            let j = self.jacobian(a, b);
+            let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+            let da = (j[1][1] * ra - j[0][1] * rb) / det;
+            let db = (j[0][0] * rb - j[1][0] * ra) / det;
+            a -= da;
+            b -= db;
+            if da.abs() + db.abs() < 1e-16 {
                 break;
             }
         }
-        let scale = if t > 0.0 { rho / t } else { 1.0 };
-        (
-            self.axis.0 + a * scale * self.f_px,
-            self.axis.1 + b * scale * self.f_px,
-        )
+        (self.axis.0 + a * self.f_px, self.axis.1 + b * self.f_px)
     }
 }
 
@@ -172,6 +219,9 @@ mod tests {
             f_px: 5000.0,
             k1: 0.8,
             k2: 0.1,
+            p1: 0.01,
+            p2: -0.02,
+            prism: [0.01, 3.0, -0.005, -2.0],
             axis: (33.5, 21.75),
             rotation: 0.01,
         };
