@@ -51,6 +51,14 @@
 //! [timing]
 //! state_timeout = 0.5         # s
 //! refreshes_per_frame = 1     # frame rate = refresh_hz / this
+//!
+//! [acceptance]                # optional section; defaults shown (facility::acceptance)
+//! max_sync_not_sent = 0
+//! max_safe_fraction = 0.01    # closed loop, after the first state
+//! missed_degraded = 0.005
+//! missed_fail = 0.05
+//! max_clip_flux = 0.001       # of a frame's disk flux
+//! allow_empty_frames = false
 //! ```
 //!
 //! Unknown keys are errors. Parse errors name the file, line and key;
@@ -62,6 +70,7 @@ use serde::Deserialize;
 
 use crate::error::{toml_message, Error, Result};
 
+use super::acceptance::AcceptanceConfig;
 use super::display::MonitorSelect;
 use super::dither::DitherKind;
 use super::frame_id::Corner;
@@ -95,6 +104,9 @@ pub struct FacilityConfig {
     /// Timing.
     #[serde(default)]
     pub timing: TimingConfig,
+    /// What a run must meet: its verdict's rules.
+    #[serde(default)]
+    pub acceptance: AcceptanceConfig,
     /// `[calibrate]`: read by `optistim calibrate`
     /// ([`calibration::config`](crate::calibration::config)), ignored here.
     #[serde(default, rename = "calibrate")]
@@ -434,7 +446,8 @@ impl FacilityConfig {
         self.drive.validate()?;
         self.frame_id.validate(self.screen.resolution)?;
         self.sync.validate()?;
-        self.timing.validate()
+        self.timing.validate()?;
+        self.acceptance.validate()
     }
 
     /// Screen size `(width, height)`.

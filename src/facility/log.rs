@@ -37,6 +37,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use super::acceptance::Verdict;
 use crate::error::{Error, Result};
 
 /// One frame.
@@ -227,6 +228,22 @@ impl Default for LatencyHistogram {
 pub struct Summary {
     /// Run id.
     pub run: String,
+    /// The run's verdict ([`acceptance`](super::acceptance)).
+    #[serde(default)]
+    pub verdict: Verdict,
+    /// Why it is not `pass`: one sentence per reason, with its count.
+    #[serde(default)]
+    pub reasons: Vec<String>,
+    /// What the operator can do about the reasons (and other findings).
+    #[serde(default)]
+    pub hints: Vec<String>,
+    /// Stopped before its planned frames (a signal, the window closed).
+    #[serde(default)]
+    pub interrupted: bool,
+    /// Frames the run was to show (the replay's, or `--frames`); None for
+    /// an open-ended closed loop.
+    #[serde(default)]
+    pub frames_planned: Option<u64>,
     /// Frames logged.
     pub frames: u64,
     /// Frames presented after their deadline.
@@ -239,9 +256,19 @@ pub struct Summary {
     /// first frame (see `driver::run`); None when none was done.
     #[serde(default)]
     pub preflight_render: Option<f64>,
+    /// Render start → conversion end of each frame (the render thread's
+    /// work), s.
+    #[serde(default)]
+    pub frame_work: LatencyStats,
+    /// States came over UDP (closed loop).
+    #[serde(default)]
+    pub closed_loop: bool,
     /// Frames that showed the safe (black) frame: no current state.
     #[serde(default)]
     pub safe_frames: u64,
+    /// Of those, the frames before the first state arrived.
+    #[serde(default)]
+    pub safe_frames_waiting: u64,
     /// Frames whose sync line was not sent (device gone, writer behind,
     /// error).
     #[serde(default)]
@@ -280,8 +307,10 @@ pub struct FrameLog {
     missed: u64,
     dropped_states: u64,
     latencies: LatencyHistogram,
+    work: LatencyHistogram,
     preflight_render: Option<f64>,
     safe_frames: u64,
+    safe_waiting: u64,
     sync_not_sent: u64,
     udp_kernel_drops: Option<u64>,
     lime_range: Option<[f64; 2]>,
@@ -318,8 +347,10 @@ impl FrameLog {
             missed: 0,
             dropped_states: 0,
             latencies: LatencyHistogram::new(),
+            work: LatencyHistogram::new(),
             preflight_render: None,
             safe_frames: 0,
+            safe_waiting: 0,
             sync_not_sent: 0,
             udp_kernel_drops: None,
             lime_range: None,
@@ -363,6 +394,10 @@ impl FrameLog {
         self.frames += 1;
         self.missed += u64::from(rec.missed);
         self.safe_frames += u64::from(rec.safe_frame);
+        if rec.safe_frame && self.safe_waiting + 1 == self.frames {
+            self.safe_waiting += 1;
+        }
+        self.work.add(rec.t_convert_end - rec.t_render_start);
         if let Some(r) = rec.render_over_lime {
             let [lo, hi] = self.lime_range.get_or_insert([r, r]);
             *lo = lo.min(r);
@@ -402,23 +437,30 @@ impl FrameLog {
             missed_deadlines: self.missed,
             dropped_states: self.dropped_states,
             latency_state_to_present: self.latencies.stats(),
+            frame_work: self.work.stats(),
             preflight_render: self.preflight_render,
             safe_frames: self.safe_frames,
+            safe_frames_waiting: self.safe_waiting,
             sync_not_sent: self.sync_not_sent,
             udp_kernel_drops: self.udp_kernel_drops,
             render_over_lime_range: self.lime_range,
+            ..Default::default()
         }
     }
 
     /// Writes the summary as pretty JSON to `path` (atomically) and returns it.
     pub fn write_summary(&self, path: impl AsRef<Path>) -> Result<Summary> {
-        let path = path.as_ref();
         let s = self.summary();
-        let text = serde_json::to_string_pretty(&s)
-            .map_err(|e| Error::Other(format!("summary not serialisable: {e}")))?;
-        crate::outfile::write_atomic(path, (text + "\n").as_bytes())?;
+        write_summary(path.as_ref(), &s)?;
         Ok(s)
     }
+}
+
+/// Writes `summary` as pretty JSON to `path` (atomically).
+pub fn write_summary(path: &Path, summary: &Summary) -> Result<()> {
+    let text = serde_json::to_string_pretty(summary)
+        .map_err(|e| Error::Other(format!("summary not serialisable: {e}")))?;
+    crate::outfile::write_atomic(path, (text + "\n").as_bytes())
 }
 
 /// Reads a frame log. An unterminated last line (crash mid-write) is

@@ -143,6 +143,7 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
                 });
                 return (Some(sent), ack);
             }
+            Ok(SendOutcome::Disabled) => return (None, None),
             Ok(other) => format!("sync line not sent: {other:?}"),
             Err(e) => format!("sync failed: {e}"),
         };
