@@ -233,6 +233,19 @@ pub fn run(args: &RunArgs) -> Result<std::process::ExitCode> {
             100.0 * (hi - 1.0)
         );
     }
+    for (name, clip) in [
+        ("white", &summary.clip_white),
+        ("black", &summary.clip_black),
+    ] {
+        if let Some(frame) = clip.flux_max_frame {
+            println!(
+                "clipped at the {name} level: {} frames, up to {} px a frame, moving up to {:.4} % of a frame's disk flux (frame {frame})",
+                clip.frames,
+                clip.pixels_max,
+                100.0 * clip.flux_max
+            );
+        }
+    }
     println!(
         "log: {}  summary: {}",
         args.log.display(),

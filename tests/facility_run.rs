@@ -637,6 +637,91 @@ fn drive_levels_invert_the_lut() {
     }
     assert!(blocks >= 20, "only {blocks} full blocks inside the body");
     println!("{blocks} blocks, worst block error {:.4} %", worst * 100.0);
+
+    // The black level's clipping in the log: the pixels whose target is
+    // lit but below black, and the flux black adds over them (black −
+    // target) as a fraction of the disk's (the ratio is the same on the
+    // screen's side and the camera's: k/τ cancels). Nothing reaches the
+    // top level here.
+    let black = test_lut_radiance(0);
+    let lit: f64 = target.iter().sum();
+    let dim: Vec<f64> = target
+        .iter()
+        .copied()
+        .filter(|&t| t > 0.0 && t < black)
+        .collect();
+    let added: f64 = dim.iter().map(|t| black - t).sum::<f64>() / lit;
+    let r = &rig.records()[0];
+    assert!(
+        !dim.is_empty() && added > 0.0,
+        "test setup: no dim limb pixel"
+    );
+    assert!(
+        r.clipped_black.abs_diff(dim.len() as u64) <= 2,
+        "{} black-clipped pixels logged, {} expected",
+        r.clipped_black,
+        dim.len()
+    );
+    assert!(
+        (r.clip_flux_black - added).abs() <= 0.02 * added,
+        "black adds {} of the disk flux, expected {added}",
+        r.clip_flux_black
+    );
+    assert_eq!((r.clipped_white, r.clip_flux_white), (0, 0.0));
+    assert_eq!(r.clipped, r.clipped_black);
+    let s = rig.summary_file();
+    assert_eq!(s.clip_black.flux_max, r.clip_flux_black);
+    assert_eq!(s.clip_black.flux_max_frame, Some(0));
+    assert_eq!(s.clip_white.flux_max_frame, None);
+}
+
+/// `--strict`: a `degraded` run exits 3, the same run without it 0. Here
+/// any clipped flux degrades (`max_clip_flux = 0`; the bundled Moon's
+/// terminator always has pixels below the screen's black) and timing is
+/// not judged (`missed_degraded = missed_fail = 1`).
+#[test]
+fn cli_strict_exits_3_on_a_degraded_run() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(root.join("configs/facility.toml"))
+        .unwrap()
+        .replace(
+            "\"moon.toml\"",
+            &format!("{:?}", root.join("configs/moon.toml")),
+        )
+        .replace(
+            "\"moon_approach.csv\"",
+            &format!("{:?}", root.join("configs/moon_approach.csv")),
+        )
+        .replace(
+            "\"../calib/example_lut.csv\"",
+            &format!("{:?}", root.join("calib/example_lut.csv")),
+        )
+        + "\n[acceptance]\nmax_clip_flux = 0.0\nmissed_degraded = 1.0\nmissed_fail = 1.0\n";
+    let facility = tmp.path().join("facility.toml");
+    std::fs::write(&facility, text).unwrap();
+    for (strict, code) in [(true, 3), (false, 0)] {
+        let tag = if strict { "strict" } else { "plain" };
+        let mut cmd = optistim();
+        cmd.arg("run")
+            .arg(&facility)
+            .args(["--frames", "2", "--log"])
+            .arg(tmp.path().join(format!("{tag}.jsonl")))
+            .arg("--summary")
+            .arg(tmp.path().join(format!("{tag}.json")));
+        if strict {
+            cmd.arg("--strict");
+        }
+        let out = cmd.output().unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(out.status.code(), Some(code), "{tag}: {stdout}");
+        assert!(stdout.contains("verdict: degraded"), "{stdout}");
+        assert!(
+            stdout.contains("  reason: 2 frames clipped at the screen's black level"),
+            "{stdout}"
+        );
+        assert!(stdout.contains("ND filter"), "{stdout}");
+    }
 }
 
 // ---------------------------------------------------------------------------

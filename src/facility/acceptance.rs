@@ -281,7 +281,42 @@ fn missed_rule(s: &Summary, a: &AcceptanceConfig, ctx: &RunContext, f: &mut Find
 }
 
 fn clip_rule(s: &Summary, a: &AcceptanceConfig, f: &mut Findings) {
-    let _ = (s, a, f);
+    let levels = [
+        (
+            &s.clip_white,
+            "white level (the LUT's top)",
+            "it took away",
+            "a longer drive.facility_exposure (smaller k) or a clearer optical path (higher τ) \
+             lowers the screen radiance the scene needs",
+        ),
+        (
+            &s.clip_black,
+            "black level (drive level 0)",
+            "it added",
+            "the black level sets the dimmest radiance the screen can show (black × τ / k at the camera): \
+             an ND filter in front of the screen (lower τ) or a shorter drive.facility_exposure (larger k) \
+             runs the screen brighter, above its black",
+        ),
+    ];
+    for (clip, level, moved, hint) in levels {
+        let Some(frame) = clip.flux_max_frame else {
+            continue;
+        };
+        if clip.flux_max > a.max_clip_flux {
+            f.add(
+                Verdict::Degraded,
+                format!(
+                    "{} frames clipped at the screen's {level}; {moved} up to {:.3} % of a frame's disk flux \
+                     (frame {frame}, up to {} pixels a frame; acceptance.max_clip_flux {} %)",
+                    clip.frames,
+                    100.0 * clip.flux_max,
+                    clip.pixels_max,
+                    100.0 * a.max_clip_flux
+                ),
+            );
+            f.hints.push(hint.into());
+        }
+    }
 }
 
 fn empty_rule(s: &Summary, f: &mut Findings) {

@@ -72,8 +72,23 @@ pub struct FrameRecord {
     pub deadline: f64,
     /// `t_presented > deadline` (set by [`FrameLog::write`]).
     pub missed: bool,
-    /// Clipped pixels (high + low).
+    /// Clipped pixels (white + black).
     pub clipped: u64,
+    /// Pixels whose screen radiance would exceed the LUT's top level.
+    #[serde(default)]
+    pub clipped_white: u64,
+    /// Pixels whose screen radiance would be below the black level (level
+    /// 0), sky excepted.
+    #[serde(default)]
+    pub clipped_black: u64,
+    /// Flux the white level moves (shown − target over the white-clipped
+    /// pixels, camera side), as a fraction of the frame's target disk
+    /// flux: ≤ 0.
+    #[serde(default)]
+    pub clip_flux_white: f64,
+    /// The same for the black level: ≥ 0 (dim pixels shown at black).
+    #[serde(default)]
+    pub clip_flux_black: f64,
     /// Peak target radiance, W m⁻² sr⁻¹.
     pub peak_radiance: f64,
     /// Facility scale factor k.
@@ -282,6 +297,39 @@ pub struct Summary {
     /// when no frame had one.
     #[serde(default)]
     pub render_over_lime_range: Option<[f64; 2]>,
+    /// The white level's clipping over the run.
+    #[serde(default)]
+    pub clip_white: ClipSummary,
+    /// The black level's clipping over the run.
+    #[serde(default)]
+    pub clip_black: ClipSummary,
+}
+
+/// One clipping level (white or black) over a run.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+pub struct ClipSummary {
+    /// Frames with a pixel clipped at this level.
+    pub frames: u64,
+    /// Most pixels clipped in one frame.
+    pub pixels_max: u64,
+    /// Largest |moved flux| of a frame, as a fraction of its disk flux.
+    pub flux_max: f64,
+    /// The frame of `flux_max`.
+    pub flux_max_frame: Option<u64>,
+}
+
+impl ClipSummary {
+    fn add(&mut self, frame: u64, pixels: u64, flux: f64) {
+        if pixels == 0 {
+            return;
+        }
+        self.frames += 1;
+        self.pixels_max = self.pixels_max.max(pixels);
+        if flux.abs() > self.flux_max || self.flux_max_frame.is_none() {
+            self.flux_max = flux.abs();
+            self.flux_max_frame = Some(frame);
+        }
+    }
 }
 
 /// True when `file` is non-empty and its last byte is not a newline.
@@ -314,6 +362,8 @@ pub struct FrameLog {
     sync_not_sent: u64,
     udp_kernel_drops: Option<u64>,
     lime_range: Option<[f64; 2]>,
+    clip_white: ClipSummary,
+    clip_black: ClipSummary,
 }
 
 impl FrameLog {
@@ -354,6 +404,8 @@ impl FrameLog {
             sync_not_sent: 0,
             udp_kernel_drops: None,
             lime_range: None,
+            clip_white: ClipSummary::default(),
+            clip_black: ClipSummary::default(),
         })
     }
 
@@ -398,6 +450,10 @@ impl FrameLog {
             self.safe_waiting += 1;
         }
         self.work.add(rec.t_convert_end - rec.t_render_start);
+        self.clip_white
+            .add(rec.frame, rec.clipped_white, rec.clip_flux_white);
+        self.clip_black
+            .add(rec.frame, rec.clipped_black, rec.clip_flux_black);
         if let Some(r) = rec.render_over_lime {
             let [lo, hi] = self.lime_range.get_or_insert([r, r]);
             *lo = lo.min(r);
@@ -444,6 +500,8 @@ impl FrameLog {
             sync_not_sent: self.sync_not_sent,
             udp_kernel_drops: self.udp_kernel_drops,
             render_over_lime_range: self.lime_range,
+            clip_white: self.clip_white,
+            clip_black: self.clip_black,
             ..Default::default()
         }
     }

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use super::screen::ScreenModel;
 use crate::error::Result;
-use crate::facility::dither::{Converter, Roi};
+use crate::facility::dither::{ConvertStats, Converter, Roi};
 use crate::facility::frame_id::FrameIdCode;
 use crate::facility::throttle::Throttle;
 use crate::facility::trajectory::State as TrajectoryState;
@@ -31,8 +31,8 @@ pub(super) struct Job {
     pub render_start: Instant,
     pub render_end: Instant,
     pub convert_end: Instant,
-    pub clipped: u64,
-    pub peak: f64,
+    /// The conversion's counts and clipped flux.
+    pub stats: ConvertStats,
     pub safe: bool,
     /// The render's error against LIME (a `lime_reference` body).
     pub render_over_lime: Option<f64>,
@@ -207,7 +207,7 @@ impl RenderThread {
             let roi = shown.and_then(|st| self.model.render(&self.scene, &st));
             let render_end = Instant::now();
             let render_over_lime = shown.and_then(|st| self.model.render_over_lime(&st));
-            let (clipped, peak) = self.convert(roi, frame, &mut buffer, &mut warned_peak)?;
+            let stats = self.convert(roi, frame, &mut buffer, &mut warned_peak)?;
             drawn.remember(entry, roi);
             if state.is_none() {
                 if let Some(more) = no_state.hit(Instant::now()) {
@@ -229,8 +229,7 @@ impl RenderThread {
                 render_start,
                 render_end,
                 convert_end,
-                clipped,
-                peak,
+                stats,
                 safe: state.is_none(),
                 render_over_lime,
             };
@@ -295,16 +294,18 @@ impl RenderThread {
     }
 
     /// Drive levels of the rendered region into `buffer`; returns the
-    /// clipped pixels and the peak target radiance (warning once when the
-    /// screen cannot show the peak).
+    /// conversion's counts (warning once when the screen cannot show the
+    /// peak).
     fn convert(
         &mut self,
         roi: Option<Roi>,
         frame: u64,
         buffer: &mut [u32],
         warned_peak: &mut bool,
-    ) -> Result<(u64, f64)> {
-        let Some(r) = roi else { return Ok((0, 0.0)) };
+    ) -> Result<ConvertStats> {
+        let Some(r) = roi else {
+            return Ok(ConvertStats::default());
+        };
         let stats = self
             .converter
             .convert(&self.model.roi_target, r, frame, buffer)?;
@@ -317,6 +318,6 @@ impl RenderThread {
                 "scene peak exceeds what the screen can show at this k; clipped"
             );
         }
-        Ok((stats.clipped(), stats.peak_target))
+        Ok(stats)
     }
 }
