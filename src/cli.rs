@@ -12,6 +12,7 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 
+use optistim::facility::acceptance::Verdict;
 use optistim::facility::config::FacilityConfig;
 use optistim::facility::display::{SimDisplay, WindowDisplay, WindowOptions};
 use optistim::facility::driver::{self, RunPlan, StateSource};
@@ -159,14 +160,23 @@ pub struct RunArgs {
     /// Write the last frames shown on the simulated display as PNG here.
     #[arg(long)]
     pub dump: Option<std::path::PathBuf>,
+    /// Exit with status 3 when the verdict is `degraded` (default 0).
+    #[arg(long)]
+    pub strict: bool,
 }
 
-/// A sync port that does nothing (`--serial none`).
+/// Exit status of a run whose verdict is `fail`.
+pub const EXIT_FAIL: u8 = 4;
+/// Exit status of a `degraded` run under `--strict`.
+pub const EXIT_DEGRADED_STRICT: u8 = 3;
+
+/// A sync port that does nothing (`--serial none`): its frames have no
+/// sync line, and none is counted as not sent.
 struct NoSync;
 
 impl SyncPort for NoSync {
     fn send(&mut self, _line: &str) -> optistim::Result<optistim::facility::serial::SendOutcome> {
-        Ok(optistim::facility::serial::SendOutcome::DeviceGone)
+        Ok(optistim::facility::serial::SendOutcome::Disabled)
     }
     fn wait_ack(&mut self, _t: std::time::Duration) -> optistim::Result<Option<String>> {
         Ok(None)
@@ -179,8 +189,10 @@ impl SyncPort for NoSync {
     }
 }
 
-/// `optistim run`.
-pub fn run(args: &RunArgs) -> Result<()> {
+/// `optistim run`: the exit status follows the verdict (0 pass or
+/// degraded, [`EXIT_FAIL`] fail, [`EXIT_DEGRADED_STRICT`] degraded with
+/// `--strict`).
+pub fn run(args: &RunArgs) -> Result<std::process::ExitCode> {
     let config = args.calibration.load_facility(&args.facility)?;
     let scene = Scene::from_file(&config.scenario.scene)?;
     let source = state_source(args, &config)?;
@@ -226,12 +238,54 @@ pub fn run(args: &RunArgs) -> Result<()> {
             100.0 * (hi - 1.0)
         );
     }
+    for (name, clip) in [
+        ("white", &summary.clip_white),
+        ("black", &summary.clip_black),
+    ] {
+        if let Some(frame) = clip.flux_max_frame {
+            println!(
+                "clipped at the {name} level: {} frames, up to {} px a frame, moving up to {:.4} % of a frame's disk flux (frame {frame})",
+                clip.frames,
+                clip.pixels_max,
+                100.0 * clip.flux_max
+            );
+        }
+    }
     println!(
         "log: {}  summary: {}",
         args.log.display(),
         args.summary.display()
     );
-    Ok(())
+    print_verdict(&summary);
+    Ok(std::process::ExitCode::from(match summary.verdict {
+        Verdict::Pass => 0,
+        Verdict::Degraded if args.strict => EXIT_DEGRADED_STRICT,
+        Verdict::Degraded => 0,
+        Verdict::Fail => EXIT_FAIL,
+    }))
+}
+
+/// The console's last lines: the verdict, each reason, each hint.
+fn print_verdict(summary: &optistim::facility::log::Summary) {
+    let planned = summary
+        .frames_planned
+        .map_or(String::new(), |n| format!(" of {n} planned"));
+    println!(
+        "verdict: {}  ({} frames{planned}{})",
+        summary.verdict.as_str(),
+        summary.frames,
+        if summary.interrupted {
+            ", interrupted"
+        } else {
+            ""
+        }
+    );
+    for r in &summary.reasons {
+        println!("  reason: {r}");
+    }
+    for h in &summary.hints {
+        println!("  hint: {h}");
+    }
 }
 
 /// Where states come from: `--listen`, else `--trajectory`, else the

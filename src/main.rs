@@ -140,7 +140,7 @@ fn main() -> ExitCode {
         .init();
     let args = Args::parse();
     let result = match args.command {
-        Command::Run(args) => cli::run(&args),
+        Command::Run(args) => return finish(cli::run(&args)),
         Command::Calibrate(args) => cli::calibrate::calibrate(&args),
         Command::PlotLog(args) => cli::plot_log::plot_log(&args),
         Command::SimLab(args) => cli::sim_lab::sim_lab(&args),
@@ -190,8 +190,13 @@ fn main() -> ExitCode {
             kernels,
         }) => cli::validate_amie(&img, &model, &out, &data, kernels.as_deref()),
     };
+    finish(result.map(|()| ExitCode::SUCCESS))
+}
+
+/// The exit status of a command's result; an error is printed on one line.
+fn finish(result: anyhow::Result<ExitCode>) -> ExitCode {
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             eprintln!("optistim: error: {e:#}");
             ExitCode::FAILURE

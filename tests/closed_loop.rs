@@ -129,8 +129,10 @@ fn optistim(args: &[&str]) {
         .args(args)
         .output()
         .unwrap();
+    // 0, or 4 for a `fail` verdict: the simulated camera's work makes
+    // frames miss their deadlines, which this test does not judge.
     assert!(
-        out.status.success(),
+        matches!(out.status.code(), Some(0 | 4)),
         "optistim {args:?} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );

@@ -1,6 +1,7 @@
 //! `optistim run` as a service manager or `timeout` stops it: SIGTERM (and
 //! SIGINT, Ctrl-C) end the run cleanly, with every frame logged as a whole
-//! JSON line and the summary written.
+//! JSON line and the summary written, saying it was interrupted (verdict
+//! `fail`, exit status 4).
 #![cfg(unix)]
 
 use std::path::Path;
@@ -34,8 +35,10 @@ fn run_and_signal(signal: i32, dir: &Path) {
     // SAFETY: plain kill(2) on our own child's pid.
     assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
     let status = child.wait().expect("wait");
-    assert!(
-        status.success(),
+    // Stopped before its 300 frames: the verdict is `fail`, exit status 4.
+    assert_eq!(
+        status.code(),
+        Some(4),
         "exit status after signal {signal}: {status}"
     );
 
@@ -48,7 +51,19 @@ fn run_and_signal(signal: i32, dir: &Path) {
     }
     let s: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&summary).expect("summary written")).unwrap();
-    assert!(s.is_object(), "{s}");
+    assert_eq!(s["interrupted"], true, "{s}");
+    assert_eq!(s["frames_planned"], 300, "{s}");
+    assert_eq!(s["frames"], frames as u64, "{s}");
+    assert_eq!(s["verdict"], "fail", "{s}");
+    let reason = format!("interrupted after {frames} of 300 planned frames");
+    assert!(
+        s["reasons"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|r| r == reason.as_str()),
+        "{s}"
+    );
 }
 
 #[test]

@@ -37,8 +37,11 @@ fn bench(scene: &Path) -> Command {
 
 /// No escape sequence, no carriage return, no bar in `out`.
 fn assert_plain(what: &str, out: &Output) {
+    // `run` exits 4 when its verdict is `fail` (a busy machine may miss
+    // deadlines): a verdict, not an error.
+    let verdict_fail = what == "run" && out.status.code() == Some(4);
     assert!(
-        out.status.success(),
+        out.status.success() || verdict_fail,
         "{what}: {}",
         String::from_utf8_lossy(&out.stderr)
     );

@@ -167,8 +167,10 @@ fn run_on_the_simulated_facility_writes_camera_frames() {
         .arg(tmp.path().join("s.json"))
         .output()
         .unwrap();
+    // 0, or 4 for a `fail` verdict: the simulated camera's work makes
+    // frames miss their deadlines.
     assert!(
-        out.status.success(),
+        matches!(out.status.code(), Some(0 | 4)),
         "stderr: {}",
         String::from_utf8_lossy(&out.stderr)
     );

@@ -55,6 +55,14 @@
 //! governor_rung = 0           # with "fixed": the rung (0 = the configured fidelity)
 //! governor_max_block = 4      # coarsest render block the ladder goes down to (1–8)
 //! governor_max_pixel_error = 0.1  # a frame whose rung's predicted per-pixel error (p99) exceeds this counts as degraded
+//!
+//! [acceptance]                # optional section; defaults shown (facility::acceptance)
+//! max_sync_not_sent = 0
+//! max_safe_fraction = 0.01    # closed loop, after the first state
+//! missed_degraded = 0.005
+//! missed_fail = 0.05
+//! max_clip_flux = 0.001       # of a frame's disk flux
+//! allow_empty_frames = false
 //! ```
 //!
 //! Unknown keys are errors. Parse errors name the file, line and key;
@@ -66,6 +74,7 @@ use serde::Deserialize;
 
 use crate::error::{toml_message, Error, Result};
 
+use super::acceptance::AcceptanceConfig;
 use super::display::MonitorSelect;
 use super::dither::DitherKind;
 use super::frame_id::Corner;
@@ -99,6 +108,9 @@ pub struct FacilityConfig {
     /// Timing.
     #[serde(default)]
     pub timing: TimingConfig,
+    /// What a run must meet: its verdict's rules.
+    #[serde(default)]
+    pub acceptance: AcceptanceConfig,
     /// `[calibrate]`: read by `optistim calibrate`
     /// ([`calibration::config`](crate::calibration::config)), ignored here.
     #[serde(default, rename = "calibrate")]
@@ -476,7 +488,8 @@ impl FacilityConfig {
         self.drive.validate()?;
         self.frame_id.validate(self.screen.resolution)?;
         self.sync.validate()?;
-        self.timing.validate()
+        self.timing.validate()?;
+        self.acceptance.validate()
     }
 
     /// Screen size `(width, height)`.

@@ -21,6 +21,12 @@
 //!    `clipped_low`. An exact `0` (empty sky) → level 0, not counted as
 //!    clipped: the screen's black is the best it can do and sky is expected
 //!    there. NaN/inf → level 0, counted in `non_finite`.
+//!    Each clipped pixel's radiance error, camera side (what is shown,
+//!    `L_level × g × τ ÷ k`, minus the target), is summed into
+//!    `moved_white` (≤ 0) or `moved_black` (≥ 0), and the finite targets
+//!    into `target_sum`: their ratios are the fractions of the frame's
+//!    flux the screen's white and black levels move (pixels of equal solid
+//!    angle).
 //!
 //! # Tile correction
 //!
@@ -340,12 +346,40 @@ pub struct ConvertStats {
     pub peak_target: f64,
     /// Largest required screen radiance `target·k/τ/g`, W m⁻² sr⁻¹.
     pub peak_screen: f64,
+    /// Σ of the finite targets (camera side), W m⁻² sr⁻¹ × pixels.
+    pub target_sum: f64,
+    /// Σ (shown − target) over the pixels clipped at the top level
+    /// (camera side, ≤ 0), W m⁻² sr⁻¹ × pixels.
+    pub moved_white: f64,
+    /// Σ (shown − target) over the pixels clipped at the black level
+    /// (camera side, ≥ 0), W m⁻² sr⁻¹ × pixels.
+    pub moved_black: f64,
 }
 
 impl ConvertStats {
     /// All clipped pixels.
     pub fn clipped(&self) -> u64 {
         self.clipped_high + self.clipped_low
+    }
+
+    /// Flux the white level moves, as a fraction of the targets' (≤ 0; 0
+    /// when nothing was lit).
+    pub fn white_flux_fraction(&self) -> f64 {
+        self.fraction(self.moved_white)
+    }
+
+    /// Flux the black level moves, as a fraction of the targets' (≥ 0).
+    pub fn black_flux_fraction(&self) -> f64 {
+        self.fraction(self.moved_black)
+    }
+
+    fn fraction(&self, moved: f64) -> f64 {
+        let f = moved / self.target_sum;
+        if self.target_sum > 0.0 && f.is_finite() {
+            f
+        } else {
+            0.0
+        }
     }
 
     fn merge(mut self, o: ConvertStats) -> ConvertStats {
@@ -355,6 +389,9 @@ impl ConvertStats {
         self.non_finite += o.non_finite;
         self.peak_target = self.peak_target.max(o.peak_target);
         self.peak_screen = self.peak_screen.max(o.peak_screen);
+        self.target_sum += o.target_sum;
+        self.moved_white += o.moved_white;
+        self.moved_black += o.moved_black;
         self
     }
 }
@@ -823,7 +860,9 @@ impl PixelCtx<'_> {
             let (l, h) = lit_span(t);
             st.pixels += t.len() as u64;
             if l < h {
-                st.peak_target = st.peak_target.max(finite_max(&t[l..h]) as f64);
+                let (peak, sum) = finite_max_sum(&t[l..h]);
+                st.peak_target = st.peak_target.max(peak as f64);
+                st.target_sum += sum;
                 (lo, hi) = (lo.min(l), hi.max(h));
             }
         }
@@ -1097,14 +1136,17 @@ impl PixelCtx<'_> {
             st.non_finite += 1;
             return self.black_pixel;
         }
+        // Camera side, a screen radiance L shows L × t / l (t / l = g τ / k).
         if l == 0.0 {
             self.black_pixel
         } else if l < self.lut.black() {
             st.clipped_low += 1;
+            st.moved_black += self.lut.black() * (t / l) - t;
             self.black_pixel
         } else if l >= self.max {
             if l > self.max {
                 st.clipped_high += 1;
+                st.moved_white += self.max * (t / l) - t;
             }
             self.top_pixel
         } else {
@@ -1282,22 +1324,33 @@ fn lit_span(t: &[f32]) -> (usize, usize) {
     (lo, hi)
 }
 
-/// Largest finite value of `t` (−inf if none), in eight lanes so that it
-/// vectorizes.
-fn finite_max(t: &[f32]) -> f32 {
+/// Largest finite value of `t` (−inf if none) and the sum of the finite
+/// values, in eight lanes so that it vectorizes.
+fn finite_max_sum(t: &[f32]) -> (f32, f64) {
     let mut lanes = [f32::NEG_INFINITY; 8];
+    let mut sums = [0.0f64; 8];
     let chunks = t.chunks_exact(8);
     let rest = chunks.remainder();
     for chunk in chunks {
-        for (m, &v) in lanes.iter_mut().zip(chunk) {
-            let v = if v.is_finite() { v } else { f32::NEG_INFINITY };
+        for ((m, s), &v) in lanes.iter_mut().zip(&mut sums).zip(chunk) {
+            let finite = v.is_finite();
+            *s += if finite { v as f64 } else { 0.0 };
+            let v = if finite { v } else { f32::NEG_INFINITY };
             *m = if v > *m { v } else { *m };
         }
     }
-    rest.iter()
+    let sum = sums.iter().sum::<f64>()
+        + rest
+            .iter()
+            .filter(|v| v.is_finite())
+            .map(|&v| v as f64)
+            .sum::<f64>();
+    let max = rest
+        .iter()
         .chain(&lanes)
         .filter(|v| v.is_finite())
-        .fold(f32::NEG_INFINITY, |a, &v| if v > a { v } else { a })
+        .fold(f32::NEG_INFINITY, |a, &v| if v > a { v } else { a });
+    (max, sum)
 }
 
 /// Bucket of a ranking key `p − threshold ∈ (−1, 1)`: `(1 − key)·nb/2`
@@ -1570,6 +1623,49 @@ mod tests {
         assert_eq!(st.peak_target, 300.0);
     }
 
+    /// The flux the white and black levels move, worked out by hand: LUT
+    /// radiance = level (black 1, top 256 at level 255), k = 2, τ = 0.5
+    /// (screen = 4 × target), flat gain 1. Targets [0.1, 0.2, 10, 100,
+    /// 0] need screen 0.4 and 0.8 (below black 1: shown 1/4 = 0.25 each),
+    /// 40 (shown as is) and 400 (above 256: shown 64), and sky.
+    /// Moved: black (0.25 − 0.1) + (0.25 − 0.2) = 0.2; white 64 − 100 = −36;
+    /// disk flux 110.3.
+    #[test]
+    fn clipped_flux_is_shown_minus_target_per_level() {
+        let settings = ConvertSettings {
+            transmission: 0.5,
+            scale_k: 2.0,
+            ..ConvertSettings::default()
+        };
+        let mut c = Converter::new(
+            linear_lut(),
+            None,
+            ThresholdMatrix::bayer(4).unwrap(),
+            settings,
+            (5, 1),
+        )
+        .unwrap();
+        let target = [0.1f32, 0.2, 10.0, 100.0, 0.0];
+        let mut frame = vec![0; 5];
+        let st = c.convert(&target, Roi::full(5, 1), 0, &mut frame).unwrap();
+        assert_eq!((st.clipped_low, st.clipped_high), (2, 1));
+        let sum: f64 = target.iter().map(|&t| t as f64).sum();
+        let black = (0.25 - 0.1f32 as f64) + (0.25 - 0.2f32 as f64);
+        assert!((st.target_sum - sum).abs() < 1e-12, "{}", st.target_sum);
+        assert!((st.moved_black - black).abs() < 1e-12, "{}", st.moved_black);
+        assert!((st.moved_white + 36.0).abs() < 1e-12, "{}", st.moved_white);
+        assert!((st.black_flux_fraction() - black / sum).abs() < 1e-15);
+        assert!((st.white_flux_fraction() + 36.0 / sum).abs() < 1e-15);
+        // Nothing lit: no fraction, not NaN.
+        let st = c
+            .convert(&[0.0; 5], Roi::full(5, 1), 1, &mut frame)
+            .unwrap();
+        assert_eq!(
+            (st.white_flux_fraction(), st.black_flux_fraction()),
+            (0.0, 0.0)
+        );
+    }
+
     /// An extreme k ÷ τ is refused up front; a target that still
     /// overflows f64 on the way is black and counted, never a panic in the
     /// render thread.
@@ -1633,6 +1729,28 @@ mod tests {
 
     /// The conversion as the module docs state it, one pixel at a time and
     /// one full sort per tile (by key descending, then row, then column).
+    /// The counts and peaks equal, the sums to 1e-9 of the targets' sum
+    /// (added in other orders).
+    fn assert_same_stats(got: &ConvertStats, want: &ConvertStats, what: &str) {
+        let sums = |s: &ConvertStats| [s.target_sum, s.moved_white, s.moved_black];
+        let counts = |s: &ConvertStats| ConvertStats {
+            target_sum: 0.0,
+            moved_white: 0.0,
+            moved_black: 0.0,
+            ..*s
+        };
+        assert_eq!(counts(got), counts(want), "{what}: stats");
+        let scale = want.target_sum.abs() + 1e-30;
+        for (a, b) in sums(got).into_iter().zip(sums(want)) {
+            assert!(
+                (a - b).abs() <= 1e-9 * scale,
+                "{what}: sums {:?} vs {:?}",
+                sums(got),
+                sums(want)
+            );
+        }
+    }
+
     /// Writes `roi` into `frame` and returns the statistics.
     #[allow(clippy::too_many_arguments)]
     fn reference_convert(
@@ -1672,11 +1790,18 @@ mod tests {
                     let l = t * factor / gain;
                     st.peak_target = st.peak_target.max(t);
                     st.peak_screen = st.peak_screen.max(l);
+                    st.target_sum += t;
+                    // What the camera sees of a screen radiance L.
+                    let seen = |screen: f64| screen * gain / factor;
                     if l == 0.0 {
                     } else if l < lut.black() {
                         st.clipped_low += 1;
+                        st.moved_black += seen(lut.black()) - t;
                     } else if l >= lut.max_radiance() {
-                        st.clipped_high += u64::from(l > lut.max_radiance());
+                        if l > lut.max_radiance() {
+                            st.clipped_high += 1;
+                            st.moved_white += seen(lut.max_radiance()) - t;
+                        }
                         level = top;
                     } else {
                         let (k, p) = lut.bracket(l).unwrap();
@@ -1939,7 +2064,7 @@ mod tests {
                     roi,
                     &mut want,
                 );
-                assert_eq!(got, expect, "case {case}, frame {frame_id}: stats");
+                assert_same_stats(&got, &expect, &format!("case {case}, frame {frame_id}"));
                 if let Some(i) = (0..w * h).find(|&i| frame[i] != want[i]) {
                     panic!(
                         "case {case}, frame {frame_id}, {roi:?}, {settings:?}: pixel ({}, {}) is {:#x}, want {:#x}",

@@ -37,6 +37,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use super::acceptance::Verdict;
 use crate::error::{Error, Result};
 use crate::facility::governor::{FrameFidelity, GovernorSummary};
 
@@ -72,8 +73,23 @@ pub struct FrameRecord {
     pub deadline: f64,
     /// `t_presented > deadline` (set by [`FrameLog::write`]).
     pub missed: bool,
-    /// Clipped pixels (high + low).
+    /// Clipped pixels (white + black).
     pub clipped: u64,
+    /// Pixels whose screen radiance would exceed the LUT's top level.
+    #[serde(default)]
+    pub clipped_white: u64,
+    /// Pixels whose screen radiance would be below the black level (level
+    /// 0), sky excepted.
+    #[serde(default)]
+    pub clipped_black: u64,
+    /// Flux the white level moves (shown − target over the white-clipped
+    /// pixels, camera side), as a fraction of the frame's target disk
+    /// flux: ≤ 0.
+    #[serde(default)]
+    pub clip_flux_white: f64,
+    /// The same for the black level: ≥ 0 (dim pixels shown at black).
+    #[serde(default)]
+    pub clip_flux_black: f64,
     /// Peak target radiance, W m⁻² sr⁻¹.
     pub peak_radiance: f64,
     /// Facility scale factor k.
@@ -232,6 +248,22 @@ impl Default for LatencyHistogram {
 pub struct Summary {
     /// Run id.
     pub run: String,
+    /// The run's verdict ([`acceptance`](super::acceptance)).
+    #[serde(default)]
+    pub verdict: Verdict,
+    /// Why it is not `pass`: one sentence per reason, with its count.
+    #[serde(default)]
+    pub reasons: Vec<String>,
+    /// What the operator can do about the reasons (and other findings).
+    #[serde(default)]
+    pub hints: Vec<String>,
+    /// Stopped before its planned frames (a signal, the window closed).
+    #[serde(default)]
+    pub interrupted: bool,
+    /// Frames the run was to show (the replay's, or `--frames`); None for
+    /// an open-ended closed loop.
+    #[serde(default)]
+    pub frames_planned: Option<u64>,
     /// Frames logged.
     pub frames: u64,
     /// Frames presented after their deadline.
@@ -244,9 +276,19 @@ pub struct Summary {
     /// first frame (see `driver::run`); None when none was done.
     #[serde(default)]
     pub preflight_render: Option<f64>,
+    /// Render start → conversion end of each frame (the render thread's
+    /// work), s.
+    #[serde(default)]
+    pub frame_work: LatencyStats,
+    /// States came over UDP (closed loop).
+    #[serde(default)]
+    pub closed_loop: bool,
     /// Frames that showed the safe (black) frame: no current state.
     #[serde(default)]
     pub safe_frames: u64,
+    /// Of those, the frames before the first state arrived.
+    #[serde(default)]
+    pub safe_frames_waiting: u64,
     /// Frames whose sync line was not sent (device gone, writer behind,
     /// error).
     #[serde(default)]
@@ -264,6 +306,39 @@ pub struct Summary {
     /// `timing.governor = "off"`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub governor: Option<GovernorSummary>,
+    /// The white level's clipping over the run.
+    #[serde(default)]
+    pub clip_white: ClipSummary,
+    /// The black level's clipping over the run.
+    #[serde(default)]
+    pub clip_black: ClipSummary,
+}
+
+/// One clipping level (white or black) over a run.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+pub struct ClipSummary {
+    /// Frames with a pixel clipped at this level.
+    pub frames: u64,
+    /// Most pixels clipped in one frame.
+    pub pixels_max: u64,
+    /// Largest |moved flux| of a frame, as a fraction of its disk flux.
+    pub flux_max: f64,
+    /// The frame of `flux_max`.
+    pub flux_max_frame: Option<u64>,
+}
+
+impl ClipSummary {
+    fn add(&mut self, frame: u64, pixels: u64, flux: f64) {
+        if pixels == 0 {
+            return;
+        }
+        self.frames += 1;
+        self.pixels_max = self.pixels_max.max(pixels);
+        if flux.abs() > self.flux_max || self.flux_max_frame.is_none() {
+            self.flux_max = flux.abs();
+            self.flux_max_frame = Some(frame);
+        }
+    }
 }
 
 /// True when `file` is non-empty and its last byte is not a newline.
@@ -289,12 +364,16 @@ pub struct FrameLog {
     missed: u64,
     dropped_states: u64,
     latencies: LatencyHistogram,
+    work: LatencyHistogram,
     preflight_render: Option<f64>,
     safe_frames: u64,
+    safe_waiting: u64,
     sync_not_sent: u64,
     udp_kernel_drops: Option<u64>,
     lime_range: Option<[f64; 2]>,
     governor: Option<GovernorSummary>,
+    clip_white: ClipSummary,
+    clip_black: ClipSummary,
 }
 
 impl FrameLog {
@@ -328,12 +407,16 @@ impl FrameLog {
             missed: 0,
             dropped_states: 0,
             latencies: LatencyHistogram::new(),
+            work: LatencyHistogram::new(),
             preflight_render: None,
             safe_frames: 0,
+            safe_waiting: 0,
             sync_not_sent: 0,
             udp_kernel_drops: None,
             lime_range: None,
             governor: None,
+            clip_white: ClipSummary::default(),
+            clip_black: ClipSummary::default(),
         })
     }
 
@@ -374,6 +457,14 @@ impl FrameLog {
         self.frames += 1;
         self.missed += u64::from(rec.missed);
         self.safe_frames += u64::from(rec.safe_frame);
+        if rec.safe_frame && self.safe_waiting + 1 == self.frames {
+            self.safe_waiting += 1;
+        }
+        self.work.add(rec.t_convert_end - rec.t_render_start);
+        self.clip_white
+            .add(rec.frame, rec.clipped_white, rec.clip_flux_white);
+        self.clip_black
+            .add(rec.frame, rec.clipped_black, rec.clip_flux_black);
         if let Some(r) = rec.render_over_lime {
             let [lo, hi] = self.lime_range.get_or_insert([r, r]);
             *lo = lo.min(r);
@@ -422,24 +513,33 @@ impl FrameLog {
             missed_deadlines: self.missed,
             dropped_states: self.dropped_states,
             latency_state_to_present: self.latencies.stats(),
+            frame_work: self.work.stats(),
             preflight_render: self.preflight_render,
             safe_frames: self.safe_frames,
+            safe_frames_waiting: self.safe_waiting,
             sync_not_sent: self.sync_not_sent,
             udp_kernel_drops: self.udp_kernel_drops,
             render_over_lime_range: self.lime_range,
             governor: self.governor.clone(),
+            clip_white: self.clip_white,
+            clip_black: self.clip_black,
+            ..Default::default()
         }
     }
 
     /// Writes the summary as pretty JSON to `path` (atomically) and returns it.
     pub fn write_summary(&self, path: impl AsRef<Path>) -> Result<Summary> {
-        let path = path.as_ref();
         let s = self.summary();
-        let text = serde_json::to_string_pretty(&s)
-            .map_err(|e| Error::Other(format!("summary not serialisable: {e}")))?;
-        crate::outfile::write_atomic(path, (text + "\n").as_bytes())?;
+        write_summary(path.as_ref(), &s)?;
         Ok(s)
     }
+}
+
+/// Writes `summary` as pretty JSON to `path` (atomically).
+pub fn write_summary(path: &Path, summary: &Summary) -> Result<()> {
+    let text = serde_json::to_string_pretty(summary)
+        .map_err(|e| Error::Other(format!("summary not serialisable: {e}")))?;
+    crate::outfile::write_atomic(path, (text + "\n").as_bytes())
 }
 
 /// Reads a frame log. An unterminated last line (crash mid-write) is

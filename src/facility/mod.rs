@@ -2,6 +2,7 @@
 //!
 //! | module | owns |
 //! |---|---|
+//! | [`acceptance`] | the `[acceptance]` rules and a run's verdict |
 //! | [`trajectory`] | the [`State`](trajectory::State) type and open-loop CSV trajectories |
 //! | [`epoch_trajectory`] | trajectories given by epoch, Sun and Moon from SPICE kernels |
 //! | [`udp`] | closed-loop states over UDP (newest wins, stale/malformed counted) |
@@ -24,6 +25,7 @@
 //! which may clear the previous ROI), `present` it, send the sync line, and
 //! write the [`log`] record.
 
+pub mod acceptance;
 pub mod config;
 pub mod display;
 pub mod dither;

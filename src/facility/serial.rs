@@ -156,6 +156,8 @@ pub enum SendOutcome {
     DeviceGone,
     /// The writer is behind; the line was dropped.
     QueueFull,
+    /// No sync by choice (`--serial none`): nothing sent, nothing missed.
+    Disabled,
 }
 
 /// Counters of a sync port.

@@ -42,13 +42,14 @@ pub use render_thread::BUDGET_WINDOW;
 use render_thread::{scene_state, Pacer, RenderThread, Source};
 pub use screen::{block_pinhole, screen_pinhole, ScreenModel};
 
+use super::acceptance::{self, RunContext};
 use super::config::{FacilityConfig, GovernorMode};
 use super::display::Display;
 use super::dither::{ConvertSettings, Converter, ThresholdMatrix};
 use super::frame_id::FrameIdCode;
 use super::geometry::GeometryCalibration;
 use super::governor::{Governor, Mode, RungProfile};
-use super::log::{FrameLog, Summary};
+use super::log::{write_summary, FrameLog, Summary};
 use super::lut::{DisplayLut, FlatField};
 use super::serial::{CommandTemplate, SyncPort};
 use super::throttle::Throttle;
@@ -375,6 +376,7 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     } = Calibration::load(config)?;
     let frame_id = frame_id_code(config)?;
     let line = sync_line(config, &scene)?;
+    let closed_loop = matches!(plan.source, StateSource::Udp { .. });
     let (first_state, source, frames) = open_source(plan.source, plan.frames, &scene.state)?;
     tracing::info!(
         k = stamps.k,
@@ -462,7 +464,21 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     if let Ok(Some(n)) = worker_result {
         log.set_udp_kernel_drops(n);
     }
-    let summary = log.write_summary(&plan.summary)?;
+    let mut summary = log.summary();
+    summary.frames_planned = frames;
+    summary.interrupted = frames.is_some_and(|n| summary.frames < n);
+    summary.closed_loop = closed_loop;
+    acceptance::judge(
+        &mut summary,
+        &config.acceptance,
+        &RunContext {
+            refresh_s: refresh.as_secs_f64(),
+            refreshes_per_frame: config.timing.refreshes_per_frame,
+            render_block: config.screen.render_block,
+            log: &plan.log,
+        },
+    );
+    write_summary(&plan.summary, &summary)?;
     result?;
     worker_result?;
     Ok(summary)

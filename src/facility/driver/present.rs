@@ -143,6 +143,7 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
                 });
                 return (Some(sent), ack);
             }
+            Ok(SendOutcome::Disabled) => return (None, None),
             Ok(other) => format!("sync line not sent: {other:?}"),
             Err(e) => format!("sync failed: {e}"),
         };
@@ -178,8 +179,12 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
             t_ack: ack.map(at),
             deadline: at(deadline),
             missed: false,
-            clipped: job.clipped,
-            peak_radiance: job.peak,
+            clipped: job.stats.clipped(),
+            clipped_white: job.stats.clipped_high,
+            clipped_black: job.stats.clipped_low,
+            clip_flux_white: job.stats.white_flux_fraction(),
+            clip_flux_black: job.stats.black_flux_fraction(),
+            peak_radiance: job.stats.peak_target,
             k: self.stamps.k,
             lut_sha256: self.stamps.lut_sha256.clone(),
             calibration_sha256: self.stamps.flat_sha256.clone(),

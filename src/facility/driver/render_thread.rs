@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use super::screen::ScreenModel;
 use crate::error::Result;
-use crate::facility::dither::{Converter, Roi};
+use crate::facility::dither::{ConvertStats, Converter, Roi};
 use crate::facility::frame_id::FrameIdCode;
 use crate::facility::governor::{FrameFidelity, Governor};
 use crate::facility::throttle::Throttle;
@@ -32,8 +32,8 @@ pub(super) struct Job {
     pub render_start: Instant,
     pub render_end: Instant,
     pub convert_end: Instant,
-    pub clipped: u64,
-    pub peak: f64,
+    /// The conversion's counts and clipped flux.
+    pub stats: ConvertStats,
     pub safe: bool,
     /// The render's error against LIME (a `lime_reference` body).
     pub render_over_lime: Option<f64>,
@@ -233,7 +233,7 @@ impl RenderThread {
             let render_over_lime = shown.and_then(|st| self.models[rung].render_over_lime(&st));
             let fidelity =
                 self.account(choice, shown.as_ref(), &mut area, render_end - render_start);
-            let (clipped, peak) = self.convert(rung, roi, frame, &mut buffer, &mut warned_peak)?;
+            let stats = self.convert(rung, roi, frame, &mut buffer, &mut warned_peak)?;
             drawn.remember(entry, roi);
             if state.is_none() {
                 if let Some(more) = no_state.hit(Instant::now()) {
@@ -255,8 +255,7 @@ impl RenderThread {
                 render_start,
                 render_end,
                 convert_end,
-                clipped,
-                peak,
+                stats,
                 safe: state.is_none(),
                 render_over_lime,
                 fidelity,
@@ -383,8 +382,8 @@ impl RenderThread {
     }
 
     /// Drive levels of the rendered region into `buffer`; returns the
-    /// clipped pixels and the peak target radiance (warning once when the
-    /// screen cannot show the peak).
+    /// conversion's counts (warning once when the screen cannot show the
+    /// peak).
     fn convert(
         &mut self,
         rung: usize,
@@ -392,8 +391,10 @@ impl RenderThread {
         frame: u64,
         buffer: &mut [u32],
         warned_peak: &mut bool,
-    ) -> Result<(u64, f64)> {
-        let Some(r) = roi else { return Ok((0, 0.0)) };
+    ) -> Result<ConvertStats> {
+        let Some(r) = roi else {
+            return Ok(ConvertStats::default());
+        };
         let stats = self
             .converter
             .convert(&self.models[rung].roi_target, r, frame, buffer)?;
@@ -406,6 +407,6 @@ impl RenderThread {
                 "scene peak exceeds what the screen can show at this k; clipped"
             );
         }
-        Ok((stats.clipped(), stats.peak_target))
+        Ok(stats)
     }
 }
