@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use optistim::calibration::checkpoint::{fingerprint, Checkpoint};
 use optistim::calibration::config::{calibrate_table, CalibrateConfig};
+use optistim::calibration::dark::DarkBank;
 use optistim::calibration::flat::{self, FlatSetup, POINTS_13};
 use optistim::calibration::radiometric::{self, Outputs, Setup};
 use optistim::calibration::verify::{self, VerifySetup};
@@ -16,7 +17,7 @@ use optistim::calibration::Instruments;
 use optistim::facility::display::Display;
 use optistim::facility::geometry::GeometryCalibration;
 use optistim::facility::lut::{decode_grey, DisplayLut, FlatField};
-use optistim::instruments::{Camera, CameraFrame, CaptureRequest, SpotMeter, SpotReading};
+use optistim::instruments::{Camera, CameraFrame, CaptureRequest, Shutter, SpotMeter, SpotReading};
 use optistim::{Error, Result};
 
 const SCREEN: (usize, usize) = (32, 24);
@@ -111,16 +112,18 @@ impl Camera for FakeCamera {
             for i in 0..CAM.0 {
                 let (u, v) = cam_to_screen(i, j);
                 let level = decode_grey(s.frame[(v as usize) * SCREEN.0 + u as usize], 8);
-                let l = if s.screen_on {
+                let light = r.shutter == Shutter::Open;
+                let l = if s.screen_on && light {
                     (s.curve)(level as f64) * (s.gain)(u, v)
                 } else {
                     0.0
                 };
                 let (tx, ty) = cam_direction(i as f64 + 0.5, j as f64 + 0.5);
                 let cos4 = 1.0 / (1.0 + tx * tx + ty * ty).powi(2);
-                let e = (l + s.ambient) * K * r.exposure_s * cos4 * camera_flat(i, j);
+                let ambient = if light { s.ambient } else { 0.0 };
+                let e = (l + ambient) * K * r.exposure_s * cos4 * camera_flat(i, j);
                 let mut dn = e.min(65535.0);
-                if s.stuck_level == Some(level) {
+                if light && s.stuck_level == Some(level) {
                     dn = 65535.0;
                 }
                 data[j * CAM.0 + i] = dn as f32;
@@ -178,6 +181,7 @@ kind = "sim"
 exposure = 0.01
 saturation_dn = 65535
 resolution = [64, 48]
+dark = "shutter"
 "#;
 
 fn config(ambient: &str) -> (String, CalibrateConfig) {
@@ -213,10 +217,12 @@ fn calibrate(
         Ok(())
     };
     let mut wait = |_s: f64| {};
+    let mut darks = DarkBank::shutter(2);
     let mut inst = Instruments {
         display: &mut screen,
         camera: &mut camera,
         meter: Some(&mut meter),
+        darks: &mut darks,
         wait: &mut wait,
     };
     let mut setup = Setup {
@@ -225,7 +231,6 @@ fn calibrate(
         spectral: None,
         meter_response: None,
         screen_spectrum: None,
-        dark: None,
         screen_power: Some(&mut power),
         source: "test".into(),
     };
@@ -465,7 +470,6 @@ fn run_flat(
         pixel_direction: &dirf,
         geometry: &g,
         camera_flat: with_camera_flat.then_some(cam_flat),
-        dark: None,
     };
     let name = if with_camera_flat {
         "flat.jsonl"
@@ -475,10 +479,12 @@ fn run_flat(
     let mut ckpt = Checkpoint::open(&dir.join(name), "fp", "flat", false).unwrap();
     let (mut screen, mut camera) = (FakeScreen(state.clone()), FakeCamera(state.clone()));
     let mut wait = |_s: f64| {};
+    let mut darks = DarkBank::shutter(2);
     let mut inst = Instruments {
         display: &mut screen,
         camera: &mut camera,
         meter: None,
+        darks: &mut darks,
         wait: &mut wait,
     };
     flat::run(&mut inst, &setup, &mut ckpt).unwrap()
@@ -566,7 +572,6 @@ fn run_verify(
         screen: SCREEN,
         camera_scale: report.scale,
         mismatch_factor: report.mismatch_factor,
-        dark: None,
     };
     let mut ckpt = Checkpoint::open(&dir.join("verify.jsonl"), "fp", "verify", false).unwrap();
     let (mut screen, mut camera, mut meter) = (
@@ -575,10 +580,12 @@ fn run_verify(
         FakeMeter(state.clone()),
     );
     let mut wait = |_s: f64| {};
+    let mut darks = DarkBank::shutter(2);
     let mut inst = Instruments {
         display: &mut screen,
         camera: &mut camera,
         meter: Some(&mut meter),
+        darks: &mut darks,
         wait: &mut wait,
     };
     verify::run(&mut inst, &setup, &mut ckpt).unwrap()

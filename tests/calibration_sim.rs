@@ -8,6 +8,7 @@ use std::path::Path;
 
 use optistim::calibration::checkpoint::Checkpoint;
 use optistim::calibration::config::CalibrateConfig;
+use optistim::calibration::dark::DarkBank;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
 use optistim::calibration::radiometric::{self, Outputs, Setup};
 use optistim::calibration::Instruments;
@@ -19,12 +20,24 @@ use optistim::simfacility::{SimFacility, SimFacilityConfig};
 /// The bundled simulated facility with a 128 × 128 camera (the same
 /// focal length, so a 0.7° field around the axis) to keep the test fast.
 fn small_facility() -> SimFacility {
+    small_facility_with(1, 0.0, 50.0)
+}
+
+/// The same with the camera's `seed`, bias (DN) and dark current (e-/s).
+fn small_facility_with(seed: u64, bias_dn: f64, dark_current: f64) -> SimFacility {
     let path = Path::new("configs/simfacility.toml");
     let text = std::fs::read_to_string(path)
         .unwrap()
         .replace("resolution = [1024, 1024]", "resolution = [128, 128]")
         .replace("cx = 512.0", "cx = 64.0")
-        .replace("cy = 512.0", "cy = 64.0");
+        .replace("cy = 512.0", "cy = 64.0")
+        .replacen("seed = 1", &format!("seed = {seed}"), 1)
+        .replace("bias_dn = 0.0", &format!("bias_dn = {bias_dn:?}"))
+        .replace(
+            "dark_current = 50.0",
+            &format!("dark_current = {dark_current:?}"),
+        );
+    assert!(text.contains(&format!("bias_dn = {bias_dn:?}")));
     let mut cfg = SimFacilityConfig::parse(&text, path).unwrap();
     cfg.resolve_paths(Path::new("configs"));
     SimFacility::new(cfg).unwrap()
@@ -46,11 +59,12 @@ kind = "sim"
 exposure = 2.0e-3
 saturation_dn = 4095
 resolution = [128, 128]
+dark = "shutter"
 "#;
 
-#[test]
-fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent() {
-    let sim = small_facility();
+/// Runs the radiometric routine on `sim` (warmed up first) with these
+/// darks; returns the report and the LUT it wrote.
+fn calibrate_lut(sim: &SimFacility, darks: &mut DarkBank) -> (radiometric::Report, DisplayLut) {
     // An operator warms the screen up first (the simulated warm-up has a
     // 600 s time constant).
     sim.advance(3600.0);
@@ -66,6 +80,7 @@ fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent()
         display: &mut display,
         camera: &mut camera,
         meter: Some(&mut meter),
+        darks,
         wait: &mut wait,
     };
     let mut setup = Setup {
@@ -76,13 +91,69 @@ fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent()
         screen_spectrum: Some(table_spectrum(
             &Table::from_csv(Path::new("data/display/lcd_white_apple_studio_display.csv")).unwrap(),
         )),
-        dark: None,
         screen_power: None,
         source: "test".into(),
     };
     let report = radiometric::run(&mut inst, &mut setup, &mut ckpt).unwrap();
     radiometric::write(&report, &setup, &Outputs::in_dir(dir.path())).unwrap();
     let lut = DisplayLut::load(dir.path().join("lut.csv"), 8).unwrap();
+    (report, lut)
+}
+
+/// Largest |a/b − 1| over the levels above 1 % of b's maximum, and at
+/// level 0.
+fn lut_difference(a: &DisplayLut, b: &DisplayLut) -> (f64, f64) {
+    let top = b.max_radiance();
+    let worst = (0..=255)
+        .map(|l| (a.radiance(l as f64), b.radiance(l as f64)))
+        .filter(|&(_, y)| y > 0.01 * top)
+        .map(|(x, y)| (x / y - 1.0).abs())
+        .fold(0.0f64, f64::max);
+    (worst, (a.radiance(0.0) / b.radiance(0.0) - 1.0).abs())
+}
+
+/// The camera's bias and dark current are taken out by the darks: a camera
+/// with 100 DN of bias and 50 e-/s of dark current gives the LUT of one
+/// with neither, within the campaign's noise (≤ 1 % above 1 % of the
+/// maximum, ≤ 3 % at level 0), for three noise seeds. Without darks the
+/// same camera's level 0 is off by far more (the check can fail).
+#[test]
+fn the_lut_does_not_depend_on_the_camera_bias_and_dark_current() {
+    for seed in 1..=3 {
+        let clean = small_facility_with(seed, 0.0, 0.0);
+        let biased = small_facility_with(seed, 100.0, 50.0);
+        let (_, a) = calibrate_lut(&clean, &mut DarkBank::shutter(4));
+        let (_, b) = calibrate_lut(&biased, &mut DarkBank::shutter(4));
+        let (worst, black) = lut_difference(&b, &a);
+        println!(
+            "seed {seed}: bias 100 DN + 50 e-/s vs none: max {:.3} % above 1 % of max, {:.3} % at level 0",
+            100.0 * worst,
+            100.0 * black
+        );
+        assert!(worst <= 0.01, "seed {seed}: {:.3} %", 100.0 * worst);
+        assert!(black <= 0.03, "seed {seed}: level 0 {:.3} %", 100.0 * black);
+        if seed == 1 {
+            let biased = small_facility_with(seed, 100.0, 50.0);
+            let (_, c) = calibrate_lut(&biased, &mut DarkBank::none());
+            let (worst, black) = lut_difference(&c, &a);
+            println!(
+                "seed 1 without darks: max {:.3} % above 1 % of max, {:.3} % at level 0",
+                100.0 * worst,
+                100.0 * black
+            );
+            assert!(
+                black > 0.03,
+                "without darks level 0 is off by {:.3} %",
+                100.0 * black
+            );
+        }
+    }
+}
+
+#[test]
+fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent() {
+    let sim = small_facility();
+    let (report, lut) = calibrate_lut(&sim, &mut DarkBank::shutter(4));
     // The truth where the camera's central region looks: the screen point
     // on the camera's axis.
     let (mut u, mut v) = (960.0, 540.0);
@@ -169,16 +240,17 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
         pixel_direction: &direction,
         geometry: &geometry,
         camera_flat: Some(sim.camera_flat()),
-        dark: None,
     };
     let mut ckpt = Checkpoint::open(&dir.path().join("f.jsonl"), "fp", "flat", false).unwrap();
     let (mut display, mut camera) = (sim.display(), sim.camera());
     let clock = sim.clone();
     let mut wait = move |s: f64| clock.advance(s);
+    let mut darks = DarkBank::shutter(2);
     let mut inst = Instruments {
         display: &mut display,
         camera: &mut camera,
         meter: None,
+        darks: &mut darks,
         wait: &mut wait,
     };
     let (gains, report) = flat::run(&mut inst, &setup, &mut ckpt).unwrap();

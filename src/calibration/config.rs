@@ -347,6 +347,12 @@ impl CalibrateConfig {
             m.validate()?;
         }
         self.camera.validate()?;
+        if self.camera.dark.is_none() {
+            return Err(Error::invalid(
+                "calibrate.camera.dark",
+                "missing: a campaign needs dark frames; say \"shutter\", \"capture\", a dark model file, or \"none\" explicitly",
+            ));
+        }
         if self.camera.exposure > self.max_exposure {
             return Err(Error::invalid(
                 key("max_exposure"),
@@ -419,7 +425,7 @@ mod tests {
     use super::*;
 
     const CAMERA: &str =
-        "[calibrate.camera]\nkind = \"sim\"\nexposure = 0.002\nsaturation_dn = 4095\n";
+        "[calibrate.camera]\nkind = \"sim\"\nexposure = 0.002\nsaturation_dn = 4095\ndark = \"shutter\"\n";
 
     #[test]
     fn ladder_is_strictly_increasing_from_black_to_top_and_packed_toward_black() {
@@ -466,6 +472,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("bogus"), "{e}");
+        // A campaign without a dark model is refused in one line.
+        let text = format!(
+            "[calibrate]\n{}",
+            CAMERA.replace("dark = \"shutter\"\n", "")
+        );
+        let e = CalibrateConfig::parse(&text, "f.toml", 8)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("calibrate.camera.dark") && !e.contains('\n'),
+            "{e}"
+        );
         let e = CalibrateConfig::parse("[screen]\n", "f.toml", 8)
             .unwrap_err()
             .to_string();

@@ -31,7 +31,6 @@ pub struct VerifySetup<'a> {
     pub camera_scale: f64,
     /// F for the meter (the radiometric report's `mismatch_factor`).
     pub mismatch_factor: Option<f64>,
-    pub dark: Option<Vec<f32>>,
 }
 
 /// One measured patch.
@@ -99,14 +98,9 @@ impl Session<'_, '_> {
     fn measure(&mut self, name: &str, level: u32) -> Result<(f64, f64)> {
         let cfg = self.setup.cfg;
         (self.inst.wait)(cfg.settle);
-        let r = self.auto.capture(
-            self.inst.camera,
-            name,
-            level,
-            cfg.camera.exposure,
-            self.setup.dark.as_deref(),
-            self.rect,
-        )?;
+        let r = self
+            .auto
+            .capture(self.inst.camera, self.inst.darks, name, level, self.rect)?;
         let radiance = r.stats.mean / r.frame.exposure_s * self.setup.camera_scale;
         Ok((radiance, r.frame.exposure_s))
     }
@@ -181,11 +175,7 @@ pub fn run(
     let mut session = Session {
         inst,
         setup,
-        auto: AutoExposure {
-            fill: cfg.target_fill,
-            min: 1e-6_f64.min(cfg.camera.exposure),
-            max: cfg.max_exposure,
-        },
+        auto: AutoExposure::of(cfg),
         rect: Rect::from_fractions(cfg.region, probe.width, probe.height),
     };
     let tl = targets(&setup.lut, cfg.verify.patches);
