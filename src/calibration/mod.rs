@@ -16,6 +16,7 @@
 //! | [`radiometric`] | drive level → camera-effective radiance: the LUT CSV, report and plot |
 //! | [`geometric`] | dot patterns → the geometry CSV (screen pixel → camera direction) |
 //! | [`flat`] | the per-pixel flat-field gain TIFF and its uniformity |
+//! | [`responsivity`] | the camera's absolute responsivity file (verify's independent scale) |
 //! | [`verify`] | target radiances through the real conversion path, achieved/target, drift |
 //!
 //! The quantity and the methods are described in docs/CALIBRATION.md.
@@ -27,6 +28,7 @@ pub mod flat;
 pub mod geometric;
 pub mod mismatch;
 pub mod radiometric;
+pub mod responsivity;
 pub mod verify;
 
 use std::time::Duration;

@@ -38,6 +38,7 @@
 //! dark = "shutter"              # "shutter" | "capture" | "none" | a dark model file (TOML)
 //! dark_frames = 4               # closed-shutter frames averaged per exposure
 //! # intrinsics = "navcam_intrinsics.toml"
+//! # responsivity = "navcam_responsivity.toml"  # absolute DN/s per W m⁻² sr⁻¹ (verify)
 //! ```
 //!
 //! Unknown keys are errors; [`SpotMeterConfig::validate`] and
@@ -100,6 +101,10 @@ pub struct SpotMeterConfig {
     /// a spectroradiometer's spectrum values are scaled by it too).
     #[serde(default = "one_f64")]
     pub unit_scale: f64,
+    /// Expanded uncertainty (k = 2, %) of the meter's own calibration
+    /// (its absolute scale), for the uncertainty budget.
+    #[serde(default)]
+    pub scale_uncertainty_k2_percent: Option<f64>,
     /// Wait before each command, s.
     #[serde(default)]
     pub settle: f64,
@@ -319,6 +324,10 @@ pub struct CameraConfig {
     /// Closed-shutter frames averaged per exposure.
     #[serde(default = "default_dark_frames")]
     pub dark_frames: usize,
+    /// The camera's absolute responsivity file
+    /// ([`CameraResponsivity`](crate::calibration::responsivity::CameraResponsivity)).
+    #[serde(default)]
+    pub responsivity: Option<PathBuf>,
     /// Camera intrinsics file (see [`intrinsics`](super::intrinsics)).
     #[serde(default)]
     pub intrinsics: Option<PathBuf>,
@@ -424,6 +433,9 @@ impl SpotMeterConfig {
         }
         text(&k("command"), &self.command, true)?;
         in_range(&k("unit_scale"), self.unit_scale, 1e-15, 1e15)?;
+        if let Some(u) = self.scale_uncertainty_k2_percent {
+            in_range(&k("scale_uncertainty_k2_percent"), u, 0.0, 100.0)?;
+        }
         in_range(&k("settle"), self.settle, 0.0, 600.0)?;
         in_range_open(&k("timeout"), self.timeout, 0.0, 600.0)?;
         if self.retries > 20 {
@@ -586,6 +598,9 @@ impl CameraConfig {
             fix(p, dir);
         }
         if let Some(p) = &mut self.intrinsics {
+            fix(p, dir);
+        }
+        if let Some(p) = &mut self.responsivity {
             fix(p, dir);
         }
     }
