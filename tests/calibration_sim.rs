@@ -133,6 +133,10 @@ fn calibrate_lut_with(
     };
     let report = radiometric::run(&mut inst, &mut setup, &mut ckpt).unwrap();
     radiometric::write(&report, &setup, &Outputs::in_dir(dir.path())).unwrap();
+    if let Some(keep) = std::env::var_os("OPTISTIM_KEEP_FIGURES") {
+        let to = Path::new(&keep).join("radiometric_sim.png");
+        std::fs::copy(dir.path().join("radiometric.png"), to).unwrap();
+    }
     let lut = DisplayLut::load(dir.path().join("lut.csv"), 8).unwrap();
     (report, lut)
 }
@@ -291,6 +295,11 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
         wait: &mut wait,
     };
     let (gains, report) = flat::run(&mut inst, &setup, &mut ckpt).unwrap();
+    if let Some(keep) = std::env::var_os("OPTISTIM_KEEP_FIGURES") {
+        let keep = Path::new(&keep);
+        let (json, png) = (keep.join("flat_sim.json"), keep.join("flat_sim.png"));
+        flat::write_report(&report, &gains, (1920, 1080), &json, &png).unwrap();
+    }
     let [u0, v0, u1, v1] = report.seen;
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
     for j in 1..20 {

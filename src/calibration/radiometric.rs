@@ -25,7 +25,7 @@ use super::mismatch::{CameraSpectral, Spectrum};
 use super::{progress, read_meter, show_level, AutoExposure, Instruments, Rect};
 use crate::error::{Error, Result};
 use crate::facility::lut::{Pchip, LUT_HEADER};
-use crate::figures::{curve_figure, CurveFigure, Panel, Series};
+use crate::figures::{curve_figure, CurveFigure, Panel, Series, PALETTE};
 use crate::radiometry::spectrum::Table;
 
 /// Name of the routine in checkpoints and reports.
@@ -660,17 +660,27 @@ pub fn plot(r: &Report, path: &Path) -> Result<()> {
             (x, curve.eval(x))
         })
         .collect();
-    let res: Vec<(f64, f64)> = r
+    // Signed residuals; those of levels above 1 % of the maximum enter the
+    // statistics in the title (as in the LUT header), the others are drawn
+    // apart.
+    let max = r.max_radiance;
+    let (inside, outside): (Vec<&LevelResult>, Vec<&LevelResult>) = r
         .levels
         .iter()
-        .filter_map(|l| l.loo_residual_percent.map(|v| (l.level as f64, v)))
-        .collect();
+        .filter(|l| l.loo_residual_percent.is_some())
+        .partition(|l| l.radiance > 0.01 * max);
+    let res = |ls: &[&LevelResult]| -> Vec<(f64, f64)> {
+        ls.iter()
+            .filter_map(|l| l.loo_residual_percent.map(|v| (l.level as f64, v)))
+            .collect()
+    };
+    let grey = plotters::style::RGBColor(150, 150, 150);
     curve_figure(
         path,
         &CurveFigure {
             title: format!(
-                "Display LUT: camera-effective radiance (LOO RMS {:.2} %, drift {:+.2} %)",
-                r.loo_rms_percent, r.drift_percent
+                "Display LUT; leave-one-out residual over levels > 1 % of max (blue; grey: left out): RMS {:.2} %, max {:.2} %; drift {:+.2} %",
+                r.loo_rms_percent, r.loo_max_percent, r.drift_percent
             ),
             x_label: "drive level".into(),
             main: Panel {
@@ -682,11 +692,17 @@ pub fn plot(r: &Report, path: &Path) -> Result<()> {
                 ],
             },
             residuals: Some(Panel {
+                // No legend box (it would hide the dark levels' points):
+                // the label says which colour is which.
                 y_label: "leave-one-out residual (%)".into(),
                 log_y: false,
-                series: vec![Series::points("", res)],
+                series: vec![
+                    Series::line("", vec![(0.0, 0.0), (top, 0.0)]).with_colour(grey),
+                    Series::points("", res(&outside)).with_colour(grey),
+                    Series::points("", res(&inside)).with_colour(PALETTE[0]),
+                ],
             }),
-            size: (900, 700),
+            size: (1200, 760),
         },
     )
 }
