@@ -13,6 +13,7 @@ use anyhow::{Context, Result};
 
 use optistim::calibration::checkpoint::Checkpoint;
 use optistim::calibration::config::CalibrateConfig;
+use optistim::calibration::dark::DarkBank;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
 use optistim::calibration::{flat, geometric, radiometric, Instruments};
 use optistim::facility::config::FacilityConfig;
@@ -153,10 +154,12 @@ fn radiometric_once(
     let (mut display, mut camera, mut meter) = (sim.display(), sim.camera(), sim.meter());
     let clock = sim.clone();
     let mut wait = move |s: f64| clock.advance(s);
+    let mut darks = DarkBank::shutter(4);
     let mut inst = Instruments {
         display: &mut display,
         camera: &mut camera,
         meter: Some(&mut meter),
+        darks: &mut darks,
         wait: &mut wait,
     };
     let meter_response = match cfg
@@ -177,7 +180,6 @@ fn radiometric_once(
         spectral: Some(CameraSpectral::from_scene(&c.scene)),
         meter_response,
         screen_spectrum,
-        dark: None,
         screen_power: None,
         source: "calibration_bench".into(),
     };
@@ -274,7 +276,6 @@ fn flat_once(c: &Common, seed: u64, geometry_csv: &Path, dir: &Path) -> Result<(
         pixel_direction: &direction,
         geometry: &geometry,
         camera_flat: Some(sim.camera_flat()),
-        dark: None,
     };
     std::fs::create_dir_all(dir)?;
     let _ = std::fs::remove_file(dir.join("f.jsonl"));
@@ -282,10 +283,12 @@ fn flat_once(c: &Common, seed: u64, geometry_csv: &Path, dir: &Path) -> Result<(
     let (mut display, mut camera) = (sim.display(), sim.camera());
     let clock = sim.clone();
     let mut wait = move |s: f64| clock.advance(s);
+    let mut darks = DarkBank::shutter(4);
     let mut inst = Instruments {
         display: &mut display,
         camera: &mut camera,
         meter: None,
+        darks: &mut darks,
         wait: &mut wait,
     };
     let start = Instant::now();

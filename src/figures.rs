@@ -673,14 +673,26 @@ pub fn heatmap(path: impl AsRef<Path>, h: &Heatmap) -> Result<()> {
     let norm = |v: f64| (v - vmin) / (vmax - vmin);
     draw_png(path, h.size, |root| {
         let (main, bar) = root.split_horizontally(h.size.0 * 80 / 100);
-        let (w, hh) = (h.width as f64, h.height as f64);
-        let mut chart = ChartBuilder::on(&main)
-            .caption(&h.title, (FONT_NAME, 22))
-            .margin(12)
-            .x_label_area_size(42)
-            .y_label_area_size(70)
-            .build_cartesian_2d(0.0..w, -hh..0.0)
+        let main = main
+            .titled(&h.title, (FONT_NAME, 22))
             .map_err(|e| err(e.to_string()))?;
+        let (w, hh) = (h.width as f64, h.height as f64);
+        let builder = |xr: f64, yr: f64| {
+            ChartBuilder::on(&main)
+                .margin(12)
+                .x_label_area_size(42)
+                .y_label_area_size(70)
+                .build_cartesian_2d(0.0..xr, -yr..0.0)
+        };
+        // A map is drawn at its own aspect ratio: the axis of the longer
+        // side (in plot pixels per map pixel) is extended, left blank.
+        let (pw, ph) = builder(w, hh)
+            .map_err(|e| err(e.to_string()))?
+            .plotting_area()
+            .dim_in_pixel();
+        let per_px = (w / pw.max(1) as f64).max(hh / ph.max(1) as f64);
+        let mut chart =
+            builder(per_px * pw as f64, per_px * ph as f64).map_err(|e| err(e.to_string()))?;
         chart
             .configure_mesh()
             .disable_mesh()

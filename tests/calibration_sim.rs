@@ -8,23 +8,39 @@ use std::path::Path;
 
 use optistim::calibration::checkpoint::Checkpoint;
 use optistim::calibration::config::CalibrateConfig;
+use optistim::calibration::dark::DarkBank;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
 use optistim::calibration::radiometric::{self, Outputs, Setup};
-use optistim::calibration::Instruments;
+use optistim::calibration::responsivity::CameraResponsivity;
+use optistim::calibration::verify::{self, AbsoluteCamera, VerifyReport, VerifySetup};
+use optistim::calibration::{show_level, Instruments};
 use optistim::facility::lut::DisplayLut;
+use optistim::instruments::{Camera, CaptureRequest, SpotMeter, SpotReading};
 use optistim::radiometry::spectrum::Table;
 use optistim::scene::Scene;
-use optistim::simfacility::{SimFacility, SimFacilityConfig};
+use optistim::simfacility::{SimFacility, SimFacilityConfig, SimMeter};
 
 /// The bundled simulated facility with a 128 × 128 camera (the same
 /// focal length, so a 0.7° field around the axis) to keep the test fast.
 fn small_facility() -> SimFacility {
+    small_facility_with(1, 0.0, 50.0)
+}
+
+/// The same with the camera's `seed`, bias (DN) and dark current (e-/s).
+fn small_facility_with(seed: u64, bias_dn: f64, dark_current: f64) -> SimFacility {
     let path = Path::new("configs/simfacility.toml");
     let text = std::fs::read_to_string(path)
         .unwrap()
         .replace("resolution = [1024, 1024]", "resolution = [128, 128]")
         .replace("cx = 512.0", "cx = 64.0")
-        .replace("cy = 512.0", "cy = 64.0");
+        .replace("cy = 512.0", "cy = 64.0")
+        .replacen("seed = 1", &format!("seed = {seed}"), 1)
+        .replace("bias_dn = 0.0", &format!("bias_dn = {bias_dn:?}"))
+        .replace(
+            "dark_current = 50.0",
+            &format!("dark_current = {dark_current:?}"),
+        );
+    assert!(text.contains(&format!("bias_dn = {bias_dn:?}")));
     let mut cfg = SimFacilityConfig::parse(&text, path).unwrap();
     cfg.resolve_paths(Path::new("configs"));
     SimFacility::new(cfg).unwrap()
@@ -46,11 +62,47 @@ kind = "sim"
 exposure = 2.0e-3
 saturation_dn = 4095
 resolution = [128, 128]
+dark = "shutter"
 "#;
 
-#[test]
-fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent() {
-    let sim = small_facility();
+/// Runs the radiometric routine on `sim` (warmed up first) with these
+/// darks; returns the report and the LUT it wrote.
+fn calibrate_lut(sim: &SimFacility, darks: &mut DarkBank) -> (radiometric::Report, DisplayLut) {
+    calibrate_lut_with(sim, darks, 1.0, 0.0)
+}
+
+/// A meter whose unit is off by `1` factor (reading × factor).
+struct ScaledMeter(SimMeter, f64);
+impl SpotMeter for ScaledMeter {
+    fn measure(&mut self) -> optistim::Result<SpotReading> {
+        let mut r = self.0.measure()?;
+        r.value *= self.1;
+        Ok(r)
+    }
+    fn describe(&self) -> String {
+        format!("{} x {}", self.0.describe(), self.1)
+    }
+}
+
+/// The screen spectrum file's shape, shifted by `nm` (S'(λ) = S(λ − nm)).
+fn screen_spectrum(shift_nm: f64) -> Vec<(f64, f64)> {
+    table_spectrum(&Table::from_csv(Path::new(SPECTRUM)).unwrap())
+        .into_iter()
+        .map(|(l, v)| (l + shift_nm, v))
+        .collect()
+}
+
+const SPECTRUM: &str = "data/display/lcd_white_apple_studio_display.csv";
+const METER_RESPONSE: &str = "configs/meter_flat_380_780.csv";
+
+/// The campaign with the meter's unit scaled by `meter_scale` and the
+/// screen spectrum file shifted by `shift_nm`.
+fn calibrate_lut_with(
+    sim: &SimFacility,
+    darks: &mut DarkBank,
+    meter_scale: f64,
+    shift_nm: f64,
+) -> (radiometric::Report, DisplayLut) {
     // An operator warms the screen up first (the simulated warm-up has a
     // 600 s time constant).
     sim.advance(3600.0);
@@ -59,30 +111,90 @@ fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent()
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt =
         Checkpoint::open(&dir.path().join("c.jsonl"), "fp", "radiometric", false).unwrap();
-    let (mut display, mut camera, mut meter) = (sim.display(), sim.camera(), sim.meter());
+    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let mut meter = ScaledMeter(sim.meter(), meter_scale);
     let clock = sim.clone();
     let mut wait = move |s: f64| clock.advance(s);
     let mut inst = Instruments {
         display: &mut display,
         camera: &mut camera,
         meter: Some(&mut meter),
+        darks,
         wait: &mut wait,
     };
     let mut setup = Setup {
         cfg: &cfg,
         bits: 8,
         spectral: Some(CameraSpectral::from_scene(&scene)),
-        meter_response: Some(Table::from_csv(Path::new("configs/meter_flat_380_780.csv")).unwrap()),
-        screen_spectrum: Some(table_spectrum(
-            &Table::from_csv(Path::new("data/display/lcd_white_apple_studio_display.csv")).unwrap(),
-        )),
-        dark: None,
+        meter_response: Some(Table::from_csv(Path::new(METER_RESPONSE)).unwrap()),
+        screen_spectrum: Some(screen_spectrum(shift_nm)),
         screen_power: None,
         source: "test".into(),
     };
     let report = radiometric::run(&mut inst, &mut setup, &mut ckpt).unwrap();
     radiometric::write(&report, &setup, &Outputs::in_dir(dir.path())).unwrap();
+    if let Some(keep) = std::env::var_os("OPTISTIM_KEEP_FIGURES") {
+        let to = Path::new(&keep).join("radiometric_sim.png");
+        std::fs::copy(dir.path().join("radiometric.png"), to).unwrap();
+    }
     let lut = DisplayLut::load(dir.path().join("lut.csv"), 8).unwrap();
+    (report, lut)
+}
+
+/// Largest |a/b − 1| over the levels above 1 % of b's maximum, and at
+/// level 0.
+fn lut_difference(a: &DisplayLut, b: &DisplayLut) -> (f64, f64) {
+    let top = b.max_radiance();
+    let worst = (0..=255)
+        .map(|l| (a.radiance(l as f64), b.radiance(l as f64)))
+        .filter(|&(_, y)| y > 0.01 * top)
+        .map(|(x, y)| (x / y - 1.0).abs())
+        .fold(0.0f64, f64::max);
+    (worst, (a.radiance(0.0) / b.radiance(0.0) - 1.0).abs())
+}
+
+/// The camera's bias and dark current are taken out by the darks: a camera
+/// with 100 DN of bias and 50 e-/s of dark current gives the LUT of one
+/// with neither, within the campaign's noise (≤ 1 % above 1 % of the
+/// maximum, ≤ 3 % at level 0), for three noise seeds. Without darks the
+/// same camera's level 0 is off by far more (the check can fail).
+#[test]
+fn the_lut_does_not_depend_on_the_camera_bias_and_dark_current() {
+    for seed in 1..=3 {
+        let clean = small_facility_with(seed, 0.0, 0.0);
+        let biased = small_facility_with(seed, 100.0, 50.0);
+        let (_, a) = calibrate_lut(&clean, &mut DarkBank::shutter(4));
+        let (_, b) = calibrate_lut(&biased, &mut DarkBank::shutter(4));
+        let (worst, black) = lut_difference(&b, &a);
+        println!(
+            "seed {seed}: bias 100 DN + 50 e-/s vs none: max {:.3} % above 1 % of max, {:.3} % at level 0",
+            100.0 * worst,
+            100.0 * black
+        );
+        assert!(worst <= 0.01, "seed {seed}: {:.3} %", 100.0 * worst);
+        assert!(black <= 0.03, "seed {seed}: level 0 {:.3} %", 100.0 * black);
+        if seed == 1 {
+            let biased = small_facility_with(seed, 100.0, 50.0);
+            let (_, c) = calibrate_lut(&biased, &mut DarkBank::none());
+            let (worst, black) = lut_difference(&c, &a);
+            println!(
+                "seed 1 without darks: max {:.3} % above 1 % of max, {:.3} % at level 0",
+                100.0 * worst,
+                100.0 * black
+            );
+            assert!(
+                black > 0.03,
+                "without darks level 0 is off by {:.3} %",
+                100.0 * black
+            );
+        }
+    }
+}
+
+#[test]
+fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent() {
+    let sim = small_facility();
+    let (report, lut) = calibrate_lut(&sim, &mut DarkBank::shutter(4));
     // The truth where the camera's central region looks: the screen point
     // on the camera's axis.
     let (mut u, mut v) = (960.0, 540.0);
@@ -173,19 +285,25 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
         pixel_direction: &direction,
         geometry: &geometry,
         camera_flat: Some(sim.camera_flat()),
-        dark: None,
     };
     let mut ckpt = Checkpoint::open(&dir.path().join("f.jsonl"), "fp", "flat", false).unwrap();
     let (mut display, mut camera) = (sim.display(), sim.camera());
     let clock = sim.clone();
     let mut wait = move |s: f64| clock.advance(s);
+    let mut darks = DarkBank::shutter(2);
     let mut inst = Instruments {
         display: &mut display,
         camera: &mut camera,
         meter: None,
+        darks: &mut darks,
         wait: &mut wait,
     };
     let (gains, report) = flat::run(&mut inst, &setup, &mut ckpt).unwrap();
+    if let Some(keep) = std::env::var_os("OPTISTIM_KEEP_FIGURES") {
+        let keep = Path::new(&keep);
+        let (json, png) = (keep.join("flat_sim.json"), keep.join("flat_sim.png"));
+        flat::write_report(&report, &gains, (1920, 1080), &json, &png).unwrap();
+    }
     let [u0, v0, u1, v1] = report.seen;
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
     for j in 1..20 {
@@ -210,4 +328,179 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
         "gain/truth spread {:.3} %",
         100.0 * (hi / lo - 1.0)
     );
+}
+
+/// The screen point on the small camera's axis (its central region looks
+/// there), by fixed-point iteration on the facility's map.
+fn axis_point(sim: &SimFacility) -> (f64, f64) {
+    let (mut u, mut v) = (960.0, 540.0);
+    for _ in 0..50 {
+        let (x, y) = sim.true_camera_pixel(u, v);
+        u -= (x - 64.0) * 0.9;
+        v -= (y - 64.0) * 0.9;
+    }
+    (u, v)
+}
+
+/// The camera's responsivity as a lab would measure it before the
+/// campaign: a known radiance (here the facility's true level-255
+/// radiance at the axis, times τ) against the dark-corrected DN/s of the
+/// 16 × 16 pixels at the image centre, each divided by the camera's own
+/// flat. Declared to 0.5 % (k = 2).
+fn lab_responsivity(sim: &SimFacility) -> CameraResponsivity {
+    let (mut display, mut camera) = (sim.display(), sim.camera());
+    show_level(&mut display, 255, 8).unwrap();
+    sim.advance(1.0);
+    let t = 1.0e-3;
+    let flat = sim.camera_flat();
+    let mut mean = |req: fn(&str, f64) -> CaptureRequest| {
+        let mut sum = vec![0.0f64; 128 * 128];
+        for k in 0..8 {
+            let f = camera.capture(&req(&format!("lab_{k}"), t)).unwrap();
+            assert!(f.data.iter().all(|&v| v < f.saturation_dn));
+            sum.iter_mut()
+                .zip(&f.data)
+                .for_each(|(s, &v)| *s += v as f64 / 8.0);
+        }
+        sum
+    };
+    let light = mean(|n, t| CaptureRequest::light(n, t));
+    let dark = mean(|n, t| CaptureRequest::dark(n, t));
+    let mut dn = 0.0;
+    for y in 56..72 {
+        for x in 56..72 {
+            let i = y * 128 + x;
+            dn += (light[i] - dark[i]) / flat[i] as f64 / 256.0;
+        }
+    }
+    let tau = sim.config().collimator.transmission;
+    let l = sim.true_camera_effective_radiance(255, axis_point(sim));
+    CameraResponsivity {
+        responsivity_dn_per_s_per_w_m2_sr: dn / t / (tau * l),
+        uncertainty_k2_percent: 0.5,
+    }
+}
+
+/// Verify on `sim` with `lut` and the campaign's meter (its unit scaled by
+/// `meter_scale`, as in the campaign) (no flat field: the shifts asserted below
+/// are differences between verifications, in which the screen's
+/// non-uniformity cancels).
+fn verify_on(
+    sim: &SimFacility,
+    lut: DisplayLut,
+    report: &radiometric::Report,
+    responsivity: CameraResponsivity,
+    meter_scale: f64,
+) -> VerifyReport {
+    let cfg = CalibrateConfig::parse(CALIBRATE, "calibrate.toml", 8).unwrap();
+    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let (f, c, k1) = (10247.4, 64.0, -0.05);
+    let direction = move |x: f64, y: f64| {
+        let (xd, yd) = ((x - c) / f, (y - c) / f);
+        let (mut tx, mut ty) = (xd, yd);
+        for _ in 0..50 {
+            let r = 1.0 + k1 * (tx * tx + ty * ty);
+            tx = xd / r;
+            ty = yd / r;
+        }
+        (tx, ty)
+    };
+    let setup = VerifySetup {
+        cfg: &cfg,
+        lut,
+        flat: None,
+        screen: (1920, 1080),
+        camera_scale: report.scale,
+        camera: AbsoluteCamera {
+            responsivity,
+            transmission: 0.85,
+            camera_flat: sim.camera_flat(),
+            pixel_direction: &direction,
+        },
+        mismatch_factor: report.mismatch_factor,
+        spectral: Some(CameraSpectral::from_scene(&scene)),
+        meter_uncertainty_k2_percent: Some(1.0),
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let mut ckpt = Checkpoint::open(&dir.path().join("v.jsonl"), "fp", "verify", false).unwrap();
+    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let mut meter = ScaledMeter(sim.meter(), meter_scale);
+    let clock = sim.clone();
+    let mut wait = move |s: f64| clock.advance(s);
+    let mut darks = DarkBank::shutter(4);
+    let mut inst = Instruments {
+        display: &mut display,
+        camera: &mut camera,
+        meter: Some(&mut meter),
+        darks: &mut darks,
+        wait: &mut wait,
+    };
+    let r = verify::run(&mut inst, &setup, &mut ckpt).unwrap();
+    println!("{}", verify::summary(&r));
+    r
+}
+
+/// Shift of a verification's mean error against the baseline's, as the
+/// ratio of achieved radiances − 1, %.
+fn shift(a: f64, base: f64) -> f64 {
+    100.0 * ((1.0 + a / 100.0) / (1.0 + base / 100.0) - 1.0)
+}
+
+/// Verify sees what the calibration got wrong, by about the injected
+/// amount: a meter unit 1 % high makes the LUT 1 % bright, so the camera
+/// (through its own responsivity) finds every patch short by 1/1.01 − 1;
+/// a screen spectrum file shifted by 2 nm scales the LUT by F'/F (F' from
+/// the shifted spectrum); a LUT 3 % bright gives 1/1.03 − 1 at camera and
+/// meter. The meter, which shares F and its unit with the calibration,
+/// cannot see the first two (its shift stays ~0), which the test asserts
+/// too. Tolerance 0.15 percentage points: three times the largest
+/// difference between two campaigns' LUTs on this facility (0.055 %, the
+/// bias test above), which a shift between two campaigns contains.
+#[test]
+fn verify_moves_by_the_injected_error() {
+    let tol = 0.15;
+    let base_sim = small_facility();
+    let (report, lut) = calibrate_lut(&base_sim, &mut DarkBank::shutter(4));
+    let resp = lab_responsivity(&base_sim);
+    let base = verify_on(&base_sim, lut.clone(), &report, resp, 1.0);
+    println!(
+        "baseline: mean camera {:+.3} %, meter {:+.3?} %",
+        base.mean_camera_error_percent, base.mean_meter_error_percent
+    );
+    let meter_base = base.mean_meter_error_percent.unwrap();
+    let check = |name: &str, r: &VerifyReport, camera_expected: f64, meter_expected: f64| {
+        let cam = shift(r.mean_camera_error_percent, base.mean_camera_error_percent);
+        let met = shift(r.mean_meter_error_percent.unwrap(), meter_base);
+        println!(
+            "{name}: camera shift {cam:+.3} % (expected {camera_expected:+.3} %), meter shift {met:+.3} % (expected {meter_expected:+.3} %)"
+        );
+        assert!((cam - camera_expected).abs() < tol, "{name}: camera {cam}");
+        assert!((met - meter_expected).abs() < tol, "{name}: meter {met}");
+    };
+
+    // 1 % meter-scale error.
+    let sim = small_facility();
+    let (rep, l) = calibrate_lut_with(&sim, &mut DarkBank::shutter(4), 1.01, 0.0);
+    let r = verify_on(&sim, l, &rep, resp, 1.01);
+    check("meter unit +1 %", &r, 100.0 * (1.0 / 1.01 - 1.0), 0.0);
+
+    // Screen spectrum 2 nm off: F' from the shifted file.
+    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let spectral = CameraSpectral::from_scene(&scene);
+    let m = Table::from_csv(Path::new(METER_RESPONSE)).unwrap();
+    let f0 = spectral.mismatch_factor(&screen_spectrum(0.0), &m).unwrap();
+    let f2 = spectral.mismatch_factor(&screen_spectrum(2.0), &m).unwrap();
+    let sim = small_facility();
+    let (rep, l) = calibrate_lut_with(&sim, &mut DarkBank::shutter(4), 1.0, 2.0);
+    let r = verify_on(&sim, l, &rep, resp, 1.0);
+    println!("F = {f0:.5}, F(+2 nm) = {f2:.5}");
+    check("spectrum +2 nm", &r, 100.0 * (f0 / f2 - 1.0), 0.0);
+
+    // A LUT 3 % bright.
+    let levels: Vec<f64> = (0..=255).map(|d| d as f64).collect();
+    let bright: Vec<f64> = levels.iter().map(|&d| 1.03 * lut.radiance(d)).collect();
+    let wrong = DisplayLut::from_points(&levels, &bright, 8).unwrap();
+    let r = verify_on(&base_sim, wrong, &report, resp, 1.0);
+    let e = 100.0 * (1.0 / 1.03 - 1.0);
+    check("LUT +3 %", &r, e, e);
 }

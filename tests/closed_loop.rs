@@ -106,6 +106,7 @@ kind = "sim"
 exposure = 0.0333
 saturation_dn = 65535
 resolution = [128, 128]
+dark = "shutter"
 intrinsics = "{intrinsics}"
 "#,
         scene = data("moon.toml").display(),

@@ -18,6 +18,7 @@
 //! ambient = "none"            # "none" | "prompt": screen off, operator asked to press Enter
 //! # mismatch_factor = 1.0     # F of docs/CALIBRATION.md when not computed from spectra
 //! # screen_spectrum = "screen_white.csv"  # wavelength_nm,value (relative) for F
+//! # screen_spectrum_uncertainty_nm = 1.0  # its wavelength-scale uncertainty (budget)
 //! # camera_responsivity = 1e-5 # W m⁻² sr⁻¹ per (DN/s) in the region: the scale without a meter
 //! out_dir = "calib"           # where the LUT, flat field, reports and checkpoints go
 //!
@@ -28,7 +29,7 @@
 //!
 //! [calibrate.verify]
 //! patches = 9                 # target radiances across the range
-//! max_error_percent = 2.0     # |achieved/target − 1| allowed per patch
+//! # max_error_percent = 2.0   # override of the threshold from the uncertainty budget
 //! drift_levels = [64, 128, 255]
 //! drift_warn_percent = 1.0
 //!
@@ -92,6 +93,10 @@ pub struct CalibrateConfig {
     pub mismatch_factor: Option<f64>,
     #[serde(default)]
     pub screen_spectrum: Option<PathBuf>,
+    /// Declared uncertainty of the screen spectrum's wavelength scale, nm
+    /// (the budget evaluates F with the spectrum shifted by it).
+    #[serde(default)]
+    pub screen_spectrum_uncertainty_nm: Option<f64>,
     #[serde(default)]
     pub camera_responsivity: Option<f64>,
     #[serde(default = "default_out_dir")]
@@ -137,8 +142,10 @@ impl Default for FlatConfig {
 pub struct VerifyConfig {
     #[serde(default = "default_patches")]
     pub patches: usize,
-    #[serde(default = "default_max_error")]
-    pub max_error_percent: f64,
+    /// Override of the pass/fail threshold (default: the uncertainty
+    /// budget combined with the camera responsivity's).
+    #[serde(default)]
+    pub max_error_percent: Option<f64>,
     #[serde(default = "default_drift_levels")]
     pub drift_levels: Vec<u32>,
     #[serde(default = "default_drift_warn")]
@@ -149,7 +156,7 @@ impl Default for VerifyConfig {
     fn default() -> Self {
         VerifyConfig {
             patches: default_patches(),
-            max_error_percent: default_max_error(),
+            max_error_percent: None,
             drift_levels: default_drift_levels(),
             drift_warn_percent: default_drift_warn(),
         }
@@ -191,9 +198,6 @@ fn default_degree() -> usize {
 }
 fn default_patches() -> usize {
     9
-}
-fn default_max_error() -> f64 {
-    2.0
 }
 fn default_drift_levels() -> Vec<u32> {
     vec![64, 128, 255]
@@ -330,12 +334,12 @@ impl CalibrateConfig {
         levels_in_range("flat.levels", &self.flat.levels, top)?;
         count("flat.degree", self.flat.degree, 0, 8)?;
         count("verify.patches", self.verify.patches, 2, 256)?;
-        in_range(
-            "verify.max_error_percent",
-            self.verify.max_error_percent,
-            0.0,
-            100.0,
-        )?;
+        if let Some(m) = self.verify.max_error_percent {
+            in_range("verify.max_error_percent", m, 0.0, 100.0)?;
+        }
+        if let Some(u) = self.screen_spectrum_uncertainty_nm {
+            in_range("screen_spectrum_uncertainty_nm", u, 0.0, 50.0)?;
+        }
         levels_in_range("verify.drift_levels", &self.verify.drift_levels, top)?;
         in_range(
             "verify.drift_warn_percent",
@@ -347,6 +351,12 @@ impl CalibrateConfig {
             m.validate()?;
         }
         self.camera.validate()?;
+        if self.camera.dark.is_none() {
+            return Err(Error::invalid(
+                "calibrate.camera.dark",
+                "missing: a campaign needs dark frames; say \"shutter\", \"capture\", a dark model file, or \"none\" explicitly",
+            ));
+        }
         if self.camera.exposure > self.max_exposure {
             return Err(Error::invalid(
                 key("max_exposure"),
@@ -419,7 +429,7 @@ mod tests {
     use super::*;
 
     const CAMERA: &str =
-        "[calibrate.camera]\nkind = \"sim\"\nexposure = 0.002\nsaturation_dn = 4095\n";
+        "[calibrate.camera]\nkind = \"sim\"\nexposure = 0.002\nsaturation_dn = 4095\ndark = \"shutter\"\n";
 
     #[test]
     fn ladder_is_strictly_increasing_from_black_to_top_and_packed_toward_black() {
@@ -466,6 +476,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("bogus"), "{e}");
+        // A campaign without a dark model is refused in one line.
+        let text = format!(
+            "[calibrate]\n{}",
+            CAMERA.replace("dark = \"shutter\"\n", "")
+        );
+        let e = CalibrateConfig::parse(&text, "f.toml", 8)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("calibrate.camera.dark") && !e.contains('\n'),
+            "{e}"
+        );
         let e = CalibrateConfig::parse("[screen]\n", "f.toml", 8)
             .unwrap_err()
             .to_string();

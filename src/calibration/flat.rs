@@ -44,8 +44,6 @@ pub struct FlatSetup<'a> {
     pub geometry: &'a GeometryCalibration,
     /// The camera's own flat (vignetting × PRNU), camera size, mean ~1.
     pub camera_flat: Option<Vec<f32>>,
-    /// Dark frame, DN.
-    pub dark: Option<Vec<f32>>,
 }
 
 /// One level's fit, as checkpointed.
@@ -339,16 +337,9 @@ pub fn run(
             ));
         }
     }
-    if let Some(d) = &setup.dark {
-        check("the dark frame", d.len())?;
-    }
     let map = pixel_map(setup, cw, ch)?;
     let region = Rect::from_fractions(cfg.region, cw, ch);
-    let auto = AutoExposure {
-        fill: cfg.target_fill,
-        min: 1e-6_f64.min(cfg.camera.exposure),
-        max: cfg.max_exposure,
-    };
+    let auto = AutoExposure::of(cfg);
     let bar = progress(cfg.flat.levels.len() as u64, "flat field");
     let mut fits = Vec::new();
     for &level in &cfg.flat.levels {
@@ -364,16 +355,10 @@ pub fn run(
                     w: cw,
                     h: ch,
                 };
-                let r = auto.capture(
-                    inst.camera,
-                    &name,
-                    level,
-                    cfg.camera.exposure,
-                    setup.dark.as_deref(),
-                    full,
-                )?;
+                let r = auto.capture(inst.camera, inst.darks, &name, level, full)?;
                 check(&format!("pattern `{name}`"), r.frame.data.len())?;
-                let f = fit_level(setup, &map, &r.frame, level, region)?;
+                let dark = r.dark.as_deref().map(|d| d.as_slice());
+                let f = fit_level(setup, &map, &r.frame, dark, level, region)?;
                 ckpt.record(&name, &f)?;
                 f
             }
@@ -394,6 +379,7 @@ fn fit_level(
     setup: &FlatSetup,
     map: &PixelMap,
     frame: &crate::instruments::CameraFrame,
+    dark: Option<&[f32]>,
     level: u32,
     region: Rect,
 ) -> Result<LevelFit> {
@@ -403,7 +389,7 @@ fn fit_level(
     let t = frame.exposure_s;
     let value = |k: usize| -> Option<(f64, f64, f64)> {
         let (u, v) = map.screen[k]?;
-        let dark = setup.dark.as_ref().map_or(0.0, |d| d[k] as f64);
+        let dark = dark.map_or(0.0, |d| d[k] as f64);
         let cam = setup.camera_flat.as_ref().map_or(1.0, |f| f[k] as f64);
         let y = (frame.data[k] as f64 - dark) / (t * cam * map.etendue[k]);
         y.is_finite().then_some((u, v, y))

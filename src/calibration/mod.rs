@@ -11,20 +11,24 @@
 //! |---|---|
 //! | [`config`] | the `[calibrate]` section of the facility file |
 //! | [`checkpoint`] | the crash-safe JSONL log of measurements, `--resume` |
+//! | [`dark`] | dark frames per exposure (bias + dark current), cached for a campaign |
 //! | [`mismatch`] | camera-effective radiance and the spectral mismatch factor F |
 //! | [`radiometric`] | drive level → camera-effective radiance: the LUT CSV, report and plot |
 //! | [`geometric`] | dot patterns → the geometry CSV (screen pixel → camera direction) |
 //! | [`flat`] | the per-pixel flat-field gain TIFF and its uniformity |
+//! | [`responsivity`] | the camera's absolute responsivity file (verify's independent scale) |
 //! | [`verify`] | target radiances through the real conversion path, achieved/target, drift |
 //!
 //! The quantity and the methods are described in docs/CALIBRATION.md.
 
 pub mod checkpoint;
 pub mod config;
+pub mod dark;
 pub mod flat;
 pub mod geometric;
 pub mod mismatch;
 pub mod radiometric;
+pub mod responsivity;
 pub mod verify;
 
 use std::time::Duration;
@@ -39,6 +43,8 @@ pub struct Instruments<'a> {
     pub display: &'a mut dyn Display,
     pub camera: &'a mut dyn Camera,
     pub meter: Option<&'a mut dyn SpotMeter>,
+    /// The campaign's dark frames, per exposure.
+    pub darks: &'a mut dark::DarkBank,
     /// Waits `seconds` after showing a patch. Real campaigns sleep; tests
     /// and the simulated facility pass a virtual clock.
     pub wait: &'a mut dyn FnMut(f64),
@@ -164,12 +170,17 @@ pub fn region_stats(frame: &CameraFrame, dark: Option<&[f32]>, rect: Rect) -> Re
 }
 
 /// A frame taken with an exposure chosen so that the region's brightest
-/// pixel sits near `fill` of saturation: starting from `start` s, halved
-/// while anything in the region saturates (reaches `saturation_dn`, or more
-/// than 1 % of the region sits at one bright value: clipped below it), lengthened (up to `max`) while
-/// the region is below a quarter of the aim.
+/// pixel sits near `fill` of saturation, from the ladder `base × 2^k`
+/// within `[min, max]` (so darks are taken once per exposure and reused):
+/// starting at `base`, halved while anything in the region saturates
+/// (reaches `saturation_dn`, or more than 1 % of the region sits at one
+/// bright value: clipped below it), lengthened by powers of 2 (up to the
+/// longest ladder exposure) while the region is below a quarter of the aim.
+/// The accepted frame is dark-corrected at its own exposure.
 pub struct AutoExposure {
     pub fill: f64,
+    /// The ladder's base exposure (`calibrate.camera.exposure`), s.
+    pub base: f64,
     pub min: f64,
     pub max: f64,
 }
@@ -177,58 +188,93 @@ pub struct AutoExposure {
 /// One exposure-ranged capture.
 pub struct Ranged {
     pub frame: CameraFrame,
+    /// Region statistics, dark subtracted.
     pub stats: RegionStats,
+    /// The dark subtracted (mean DN per pixel at the frame's exposure).
+    pub dark: Option<std::sync::Arc<Vec<f32>>>,
 }
 
+/// Most halvings below the base exposure the ladder holds.
+const LADDER_DOWN: i32 = 20;
+
 impl AutoExposure {
-    /// Captures `pattern` (drive `level`, for errors) with auto-ranging.
+    /// The ranging of `cfg`: base `calibrate.camera.exposure`, at most
+    /// `max_exposure`.
+    pub fn of(cfg: &config::CalibrateConfig) -> AutoExposure {
+        AutoExposure {
+            fill: cfg.target_fill,
+            base: cfg.camera.exposure,
+            min: 1e-6_f64.min(cfg.camera.exposure),
+            max: cfg.max_exposure,
+        }
+    }
+
+    /// Every exposure of the ladder, shortest first.
+    pub fn ladder(&self) -> Vec<f64> {
+        (-LADDER_DOWN..=30)
+            .map(|k| self.base * 2f64.powi(k))
+            .filter(|&t| t >= self.min * (1.0 - 1e-9) && t <= self.max * (1.0 + 1e-9))
+            .collect()
+    }
+
+    /// The longest ladder exposure.
+    pub fn longest(&self) -> f64 {
+        self.ladder().last().copied().unwrap_or(self.base)
+    }
+
+    /// Captures `pattern` (drive `level`, for errors) with auto-ranging
+    /// and dark-corrects the accepted frame from `darks`.
     pub fn capture(
         &self,
         camera: &mut dyn Camera,
+        darks: &mut dark::DarkBank,
         pattern: &str,
         level: u32,
-        start: f64,
-        dark: Option<&[f32]>,
         rect: Rect,
     ) -> Result<Ranged> {
-        let mut exposure = start.clamp(self.min, self.max);
-        for attempt in 0..24 {
-            let request = CaptureRequest {
-                pattern: if attempt == 0 {
+        let ladder = self.ladder();
+        let mut k = ladder
+            .iter()
+            .position(|&t| (t - self.base).abs() <= 1e-9 * self.base)
+            .unwrap_or(ladder.len() - 1);
+        for attempt in 0..48 {
+            let request = CaptureRequest::light(
+                if attempt == 0 {
                     pattern.to_string()
                 } else {
                     format!("{pattern}_x{attempt}")
                 },
-                exposure_s: exposure,
-                shutter: Default::default(),
-            };
+                ladder[k],
+            );
             let frame = camera.capture(&request)?;
-            let stats = region_stats(&frame, dark, rect)?;
+            let stats = region_stats(&frame, None, rect)?;
             let sat = frame.saturation_dn as f64;
             // More than 1 % of the region at one bright value is a clipped
             // plateau (a full well below `saturation_dn`), not a signal.
             let plateau = stats.max_raw > 0.25 * sat && stats.at_max > (stats.pixels / 100).max(3);
             if stats.max_raw >= sat || plateau {
-                if exposure <= self.min * 1.000_001 {
+                if k == 0 {
                     return Err(Error::Other(format!(
                         "pattern `{pattern}` (drive level {level}): camera saturated in the \
                          measured region ({} pixels of the frame at ≥ {sat} DN) even at the \
-                         shortest exposure {exposure} s",
-                        stats.saturated
+                         shortest exposure {} s",
+                        stats.saturated, ladder[0]
                     )));
                 }
-                exposure = (exposure / 2.0).max(self.min);
+                k -= 1;
                 continue;
             }
             let aim = self.fill * sat;
             let peak = stats.max_raw.max(1.0);
-            if peak < aim / 4.0 && exposure < self.max * 0.999_999 {
-                // Lengthen toward the aim in one step, bounded.
-                let factor = (aim / peak).min(64.0);
-                exposure = (exposure * factor).min(self.max);
+            if peak < aim / 4.0 && k + 1 < ladder.len() {
+                // Lengthen toward the aim in one step (a power of 2, ≤ 64).
+                let steps = ((aim / peak).min(64.0).log2().floor() as usize).max(1);
+                k = (k + steps).min(ladder.len() - 1);
                 continue;
             }
-            return Ok(Ranged { frame, stats });
+            let dark = darks.dark_for(camera, &frame)?;
+            let stats = region_stats(&frame, dark.as_deref().map(|d| d.as_slice()), rect)?;
+            return Ok(Ranged { frame, stats, dark });
         }
         Err(Error::Other(format!(
             "pattern `{pattern}` (drive level {level}): exposure auto-ranging did not settle"

@@ -25,7 +25,7 @@ use super::mismatch::{CameraSpectral, Spectrum};
 use super::{progress, read_meter, show_level, AutoExposure, Instruments, Rect};
 use crate::error::{Error, Result};
 use crate::facility::lut::{Pchip, LUT_HEADER};
-use crate::figures::{curve_figure, CurveFigure, Panel, Series};
+use crate::figures::{curve_figure, CurveFigure, Panel, Series, PALETTE};
 use crate::radiometry::spectrum::Table;
 
 /// Name of the routine in checkpoints and reports.
@@ -60,8 +60,6 @@ pub struct Setup<'a> {
     pub meter_response: Option<Table>,
     /// A configured screen spectrum, `(nm, relative)`.
     pub screen_spectrum: Option<Vec<(f64, f64)>>,
-    /// The camera's dark frame (DN), subtracted from every frame.
-    pub dark: Option<Vec<f32>>,
     /// With `ambient = "prompt"`: called with `true` to have the screen
     /// switched off, `false` to have it back on.
     pub screen_power: Option<&'a mut dyn FnMut(bool) -> Result<()>>,
@@ -111,6 +109,9 @@ pub struct Report {
     pub loo_max_percent: f64,
     pub camera: String,
     pub meter: String,
+    /// How the frames were dark-corrected.
+    #[serde(default)]
+    pub dark: String,
     pub exposure_range_s: [f64; 2],
     pub region: Rect,
     pub date: String,
@@ -180,6 +181,7 @@ pub fn run(inst: &mut Instruments, setup: &mut Setup, ckpt: &mut Checkpoint) -> 
         levels,
         camera: camera_name,
         meter: meter_name,
+        dark: inst.darks.describe(),
         exposure_range_s: taker.exposure_range,
         region: taker.rect,
         date: utc_now(),
@@ -188,40 +190,33 @@ pub fn run(inst: &mut Instruments, setup: &mut Setup, ckpt: &mut Checkpoint) -> 
 }
 
 /// Takes (or reuses from the checkpoint) single measurements.
-struct Taker<'s> {
+struct Taker {
     auto: AutoExposure,
-    start_exposure: f64,
     rect: Rect,
-    dark: Option<&'s [f32]>,
     bits: u32,
     settle: f64,
     exposure_range: [f64; 2],
 }
 
-impl<'s> Taker<'s> {
-    fn new(setup: &'s Setup, inst: &mut Instruments) -> Result<Taker<'s>> {
+impl Taker {
+    fn new(setup: &Setup, inst: &mut Instruments) -> Result<Taker> {
         let cfg = setup.cfg;
         // The region needs the frame size: from the config, else one frame.
         let (w, h) = match cfg.camera.resolution {
             Some([w, h]) => (w, h),
             None => {
-                let f = inst.camera.capture(&crate::instruments::CaptureRequest {
-                    pattern: "probe".into(),
-                    exposure_s: cfg.camera.exposure,
-                    shutter: Default::default(),
-                })?;
+                let f = inst
+                    .camera
+                    .capture(&crate::instruments::CaptureRequest::light(
+                        "probe",
+                        cfg.camera.exposure,
+                    ))?;
                 (f.width, f.height)
             }
         };
         Ok(Taker {
-            auto: AutoExposure {
-                fill: cfg.target_fill,
-                min: 1e-6_f64.min(cfg.camera.exposure),
-                max: cfg.max_exposure,
-            },
-            start_exposure: cfg.camera.exposure,
+            auto: AutoExposure::of(cfg),
             rect: Rect::from_fractions(cfg.region, w, h),
-            dark: setup.dark.as_deref(),
             bits: setup.bits,
             settle: cfg.settle,
             exposure_range: [f64::INFINITY, 0.0],
@@ -242,14 +237,9 @@ impl<'s> Taker<'s> {
             None => {
                 show_level(inst.display, level, self.bits)?;
                 (inst.wait)(self.settle);
-                let r = self.auto.capture(
-                    inst.camera,
-                    name,
-                    level,
-                    self.start_exposure,
-                    self.dark,
-                    self.rect,
-                )?;
+                let r = self
+                    .auto
+                    .capture(inst.camera, inst.darks, name, level, self.rect)?;
                 let reading = read_meter(&mut inst.meter, name, level)?;
                 let t = r.frame.exposure_s;
                 let m = Measurement {
@@ -299,12 +289,14 @@ impl<'s> Taker<'s> {
         })?;
         power(false)?;
         (inst.wait)(self.settle);
-        let frame = inst.camera.capture(&crate::instruments::CaptureRequest {
-            pattern: "ambient".into(),
-            exposure_s: self.auto.max,
-            shutter: Default::default(),
-        })?;
-        let stats = super::region_stats(&frame, self.dark, self.rect)?;
+        let frame = inst
+            .camera
+            .capture(&crate::instruments::CaptureRequest::light(
+                "ambient",
+                self.auto.longest(),
+            ))?;
+        let dark = inst.darks.dark_for(inst.camera, &frame)?;
+        let stats = super::region_stats(&frame, dark.as_deref().map(|d| d.as_slice()), self.rect)?;
         let reading = read_meter(&mut inst.meter, "ambient", 0)?;
         power(true)?;
         let t = frame.exposure_s;
@@ -614,6 +606,7 @@ pub fn lut_csv(r: &Report, setup: &Setup) -> String {
         "camera: {}; region {} px; exposure {:.3e}..{:.3e} s (auto-ranged, normalised to DN/s)",
         r.camera, r.region, r.exposure_range_s[0], r.exposure_range_s[1]
     ));
+    line(format!("dark: {}", r.dark));
     line(format!("meter: {}; scale: {}", r.meter, r.scale_method));
     line(format!(
         "levels: {} ({}), spacing power {}; repeats: {}; settle {} s; seed {}",
@@ -667,17 +660,27 @@ pub fn plot(r: &Report, path: &Path) -> Result<()> {
             (x, curve.eval(x))
         })
         .collect();
-    let res: Vec<(f64, f64)> = r
+    // Signed residuals; those of levels above 1 % of the maximum enter the
+    // statistics in the title (as in the LUT header), the others are drawn
+    // apart.
+    let max = r.max_radiance;
+    let (inside, outside): (Vec<&LevelResult>, Vec<&LevelResult>) = r
         .levels
         .iter()
-        .filter_map(|l| l.loo_residual_percent.map(|v| (l.level as f64, v)))
-        .collect();
+        .filter(|l| l.loo_residual_percent.is_some())
+        .partition(|l| l.radiance > 0.01 * max);
+    let res = |ls: &[&LevelResult]| -> Vec<(f64, f64)> {
+        ls.iter()
+            .filter_map(|l| l.loo_residual_percent.map(|v| (l.level as f64, v)))
+            .collect()
+    };
+    let grey = plotters::style::RGBColor(150, 150, 150);
     curve_figure(
         path,
         &CurveFigure {
             title: format!(
-                "Display LUT: camera-effective radiance (LOO RMS {:.2} %, drift {:+.2} %)",
-                r.loo_rms_percent, r.drift_percent
+                "Display LUT; leave-one-out residual over levels > 1 % of max (blue; grey: left out): RMS {:.2} %, max {:.2} %; drift {:+.2} %",
+                r.loo_rms_percent, r.loo_max_percent, r.drift_percent
             ),
             x_label: "drive level".into(),
             main: Panel {
@@ -689,11 +692,17 @@ pub fn plot(r: &Report, path: &Path) -> Result<()> {
                 ],
             },
             residuals: Some(Panel {
+                // No legend box (it would hide the dark levels' points):
+                // the label says which colour is which.
                 y_label: "leave-one-out residual (%)".into(),
                 log_y: false,
-                series: vec![Series::points("", res)],
+                series: vec![
+                    Series::line("", vec![(0.0, 0.0), (top, 0.0)]).with_colour(grey),
+                    Series::points("", res(&outside)).with_colour(grey),
+                    Series::points("", res(&inside)).with_colour(PALETTE[0]),
+                ],
             }),
-            size: (900, 700),
+            size: (1200, 760),
         },
     )
 }

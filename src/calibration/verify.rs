@@ -1,24 +1,62 @@
 //! Verification of a calibration: target radiance patches across the LUT's
-//! range driven through the run's own conversion path
+//! range (log-spaced radiances, so between the calibration's ladder
+//! levels) driven through the run's own conversion path
 //! ([`dither::Converter`](crate::facility::dither::Converter) with the LUT
-//! and the flat field), measured by the camera (with the radiometric
-//! calibration's scale, radiance per DN/s) and the meter (F × reading);
-//! achieved/target per patch in per cent; and a quick drift check: a few
-//! uniform levels against the LUT. Thresholds come from
-//! `[calibrate.verify]`; [`VerifyReport::passed`] is false when a patch
-//! misses, and `optistim calibrate verify` then exits non-zero.
+//! and the flat field), measured with scales the calibration did not fit:
+//!
+//! * the camera, at the centre and four off-centre spots, through its own
+//!   absolute responsivity R (a lab calibration,
+//!   [`responsivity`](super::responsivity)), its own flat and each pixel's
+//!   etendue, and the collimator's transmission τ:
+//!   L = (DN/s) ÷ (flat · etendue) ÷ (R · τ);
+//! * the meter: a spectroradiometer's spectrum gives camera-effective
+//!   radiance directly, a broadband meter F × reading.
+//!
+//! achieved/target − 1 per patch and instrument, in per cent, against a
+//! threshold from the uncertainty budget (the LUT's per-level uncertainty
+//! combined with R's, or the meter's scale uncertainty), unless
+//! `verify.max_error_percent` overrides it; and a quick drift check: a few
+//! uniform levels against the LUT (relative, with the radiometric scale).
+//! [`VerifyReport::passed`] is false when a patch misses, and
+//! `optistim calibrate verify` then exits non-zero.
+
+use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
 use super::checkpoint::Checkpoint;
 use super::config::CalibrateConfig;
+use super::mismatch::CameraSpectral;
+use super::responsivity::CameraResponsivity;
 use super::{progress, read_meter, show_level, AutoExposure, Instruments, Rect};
 use crate::error::{Error, Result};
 use crate::facility::dither::{ConvertSettings, Converter, Roi, ThresholdMatrix};
 use crate::facility::lut::{DisplayLut, FlatField};
+use crate::figures::{log_x_panels, LogXPanels, Panel, Series};
 
 /// Name of the routine in checkpoints and reports.
 pub const ROUTINE: &str = "verify";
+
+/// The camera spots: name and centre as fractions of the frame.
+pub const SPOTS: [(&str, f64, f64); 5] = [
+    ("centre", 0.5, 0.5),
+    ("upper left", 0.25, 0.25),
+    ("upper right", 0.75, 0.25),
+    ("lower left", 0.25, 0.75),
+    ("lower right", 0.75, 0.75),
+];
+
+/// The camera as an independent radiometer.
+pub struct AbsoluteCamera<'a> {
+    pub responsivity: CameraResponsivity,
+    /// The collimator's transmission τ.
+    pub transmission: f64,
+    /// The camera's own flat (camera size, 1 ≈ the centre).
+    pub camera_flat: Vec<f32>,
+    /// Camera pixel position (centres at +0.5) → direction (tan_x, tan_y):
+    /// the intrinsics, for each pixel's etendue.
+    pub pixel_direction: &'a (dyn Fn(f64, f64) -> (f64, f64) + Sync),
+}
 
 /// What the routine needs besides the instruments.
 pub struct VerifySetup<'a> {
@@ -26,12 +64,26 @@ pub struct VerifySetup<'a> {
     pub lut: DisplayLut,
     pub flat: Option<FlatField>,
     pub screen: (usize, usize),
-    /// Radiance per DN/s of the camera region (the radiometric report's
-    /// `scale`).
+    /// Radiance per DN/s of the radiometric region (the radiometric
+    /// report's `scale`): used by the relative drift check only.
     pub camera_scale: f64,
-    /// F for the meter (the radiometric report's `mismatch_factor`).
+    pub camera: AbsoluteCamera<'a>,
+    /// F for a broadband meter.
     pub mismatch_factor: Option<f64>,
-    pub dark: Option<Vec<f32>>,
+    /// The camera's spectral weighting, for a spectroradiometer's spectra.
+    pub spectral: Option<CameraSpectral>,
+    /// The meter's scale uncertainty (k = 2, %), if declared.
+    pub meter_uncertainty_k2_percent: Option<f64>,
+}
+
+/// One camera spot of a patch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpotResult {
+    pub name: String,
+    pub rect: Rect,
+    /// Screen radiance from the camera's responsivity, W m⁻² sr⁻¹.
+    pub radiance: f64,
+    pub error_percent: f64,
 }
 
 /// One measured patch.
@@ -39,12 +91,16 @@ pub struct VerifySetup<'a> {
 pub struct Patch {
     /// Target screen radiance, W m⁻² sr⁻¹.
     pub target: f64,
-    /// Camera-measured radiance, and achieved/target − 1 in %.
-    pub camera: f64,
-    pub camera_error_percent: f64,
-    /// Meter-measured radiance (F × reading), and its error, %.
+    /// The LUT's (fractional) drive level for the target.
+    pub drive_level: f64,
+    /// The camera spots (the first is the centre).
+    pub spots: Vec<SpotResult>,
+    /// Meter-measured camera-effective radiance, and its error, %.
     pub meter: Option<f64>,
     pub meter_error_percent: Option<f64>,
+    /// Allowed |error| (k = 2), %, for the camera and the meter.
+    pub camera_threshold_percent: f64,
+    pub meter_threshold_percent: Option<f64>,
     pub exposure_s: f64,
 }
 
@@ -62,8 +118,20 @@ pub struct DriftPoint {
 pub struct VerifyReport {
     pub patches: Vec<Patch>,
     pub drift: Vec<DriftPoint>,
+    /// Largest |error| over every spot and the meter, %.
     pub max_error_percent: f64,
-    pub threshold_percent: f64,
+    /// Means over the patches: the camera's (all spots) and the meter's
+    /// error, %.
+    pub mean_camera_error_percent: f64,
+    pub mean_meter_error_percent: Option<f64>,
+    /// `verify.max_error_percent`, when it overrides the budget.
+    pub threshold_override_percent: Option<f64>,
+    /// The camera responsivity's own uncertainty (k = 2), %.
+    pub responsivity_uncertainty_k2_percent: f64,
+    /// Whether the LUT gave per-level uncertainties.
+    pub lut_uncertainty: bool,
+    /// Measurements beyond their threshold.
+    pub failures: usize,
     pub max_drift_percent: f64,
     pub drift_warn_percent: f64,
     pub drift_warning: bool,
@@ -85,30 +153,129 @@ pub fn targets(lut: &DisplayLut, n: usize) -> Vec<f64> {
         .collect()
 }
 
+/// A camera spot: its rectangle and per-pixel flat × relative etendue.
+struct Spot {
+    name: &'static str,
+    rect: Rect,
+    weight: Vec<f64>,
+}
+
+/// The spots of a `width × height` camera, each the size of the
+/// radiometric region.
+fn spots(
+    cam: &AbsoluteCamera,
+    cfg: &CalibrateConfig,
+    width: usize,
+    height: usize,
+) -> Result<Vec<Spot>> {
+    if cam.camera_flat.len() != width * height {
+        return Err(Error::Other(format!(
+            "calibrate.flat.camera_flat has {} pixels, the camera frame {width}×{height}",
+            cam.camera_flat.len()
+        )));
+    }
+    let dir = cam.pixel_direction;
+    let etendue = |x: f64, y: f64| {
+        let (tx, ty) = dir(x, y);
+        let (ax, ay) = dir(x + 0.5, y);
+        let (bx, by) = dir(x - 0.5, y);
+        let (cx, cy) = dir(x, y + 0.5);
+        let (dx, dy) = dir(x, y - 0.5);
+        let jac = ((ax - bx) * (cy - dy) - (ay - by) * (cx - dx)).abs();
+        let r2 = 1.0 + tx * tx + ty * ty;
+        jac / (r2 * r2)
+    };
+    let centre = etendue(width as f64 / 2.0, height as f64 / 2.0);
+    let [_, _, w, h] = cfg.region;
+    SPOTS
+        .iter()
+        .map(|&(name, fx, fy)| {
+            let f = [
+                (fx - w / 2.0).clamp(0.0, 1.0 - w),
+                (fy - h / 2.0).clamp(0.0, 1.0 - h),
+                w,
+                h,
+            ];
+            let rect = Rect::from_fractions(f, width, height);
+            let mut weight = Vec::with_capacity(rect.w * rect.h);
+            for y in rect.y..rect.y + rect.h {
+                for x in rect.x..rect.x + rect.w {
+                    let g = cam.camera_flat[y * width + x] as f64;
+                    let e = etendue(x as f64 + 0.5, y as f64 + 0.5) / centre;
+                    if !(g.is_finite() && g > 0.0 && e.is_finite() && e > 0.0) {
+                        return Err(Error::Other(format!(
+                            "verify spot `{name}`: camera pixel ({x}, {y}) has flat {g} and etendue {e}: \
+                             check calibrate.flat.camera_flat and calibrate.camera.intrinsics"
+                        )));
+                    }
+                    weight.push(g * e);
+                }
+            }
+            Ok(Spot { name, rect, weight })
+        })
+        .collect()
+}
+
 /// What every measurement of a verification shares.
 struct Session<'s, 'i> {
     inst: &'s mut Instruments<'i>,
     setup: &'s VerifySetup<'s>,
     auto: AutoExposure,
-    /// The camera region measured.
+    /// The radiometric region (drift check).
     rect: Rect,
+    spots: Vec<Spot>,
 }
 
 impl Session<'_, '_> {
-    /// The camera's radiance of the region, for the pattern shown now.
-    fn measure(&mut self, name: &str, level: u32) -> Result<(f64, f64)> {
-        let cfg = self.setup.cfg;
-        (self.inst.wait)(cfg.settle);
-        let r = self.auto.capture(
-            self.inst.camera,
-            name,
-            level,
-            cfg.camera.exposure,
-            self.setup.dark.as_deref(),
-            self.rect,
-        )?;
-        let radiance = r.stats.mean / r.frame.exposure_s * self.setup.camera_scale;
-        Ok((radiance, r.frame.exposure_s))
+    /// One auto-ranged, dark-corrected frame of what the screen shows now.
+    fn frame(&mut self, name: &str, level: u32) -> Result<super::Ranged> {
+        (self.inst.wait)(self.setup.cfg.settle);
+        let all = self.spots.iter().fold(self.rect, |a, s| union(a, s.rect));
+        self.auto
+            .capture(self.inst.camera, self.inst.darks, name, level, all)
+    }
+
+    /// The screen radiance each spot sees, from the camera's responsivity.
+    fn spot_radiances(&self, r: &super::Ranged) -> Vec<(f64, Rect, &'static str)> {
+        let cam = &self.setup.camera;
+        let scale = cam.responsivity.responsivity_dn_per_s_per_w_m2_sr * cam.transmission;
+        let t = r.frame.exposure_s;
+        let width = r.frame.width;
+        self.spots
+            .iter()
+            .map(|s| {
+                let mut sum = 0.0;
+                let mut k = 0;
+                for y in s.rect.y..s.rect.y + s.rect.h {
+                    for x in s.rect.x..s.rect.x + s.rect.w {
+                        let i = y * width + x;
+                        let d = r.dark.as_ref().map_or(0.0, |d| d[i] as f64);
+                        sum += (r.frame.data[i] as f64 - d) / s.weight[k];
+                        k += 1;
+                    }
+                }
+                (sum / k as f64 / t / scale, s.rect, s.name)
+            })
+            .collect()
+    }
+
+    /// The meter's camera-effective radiance of what the screen shows now.
+    fn meter(&mut self, name: &str, level: u32) -> Result<Option<f64>> {
+        let Some(m) = read_meter(&mut self.inst.meter, name, level)? else {
+            return Ok(None);
+        };
+        match (
+            &m.spectrum,
+            &self.setup.spectral,
+            self.setup.mismatch_factor,
+        ) {
+            (Some(s), Some(c), _) => c.effective_radiance(s).map(Some),
+            (_, _, Some(f)) => Ok(Some(f * m.value)),
+            _ => Err(Error::invalid(
+                "calibrate.mismatch_factor",
+                "verify needs F (or a spectroradiometer) to read the meter",
+            )),
+        }
     }
 
     /// One patch: a uniform target radiance through the LUT, flat field and
@@ -124,24 +291,47 @@ impl Session<'_, '_> {
         let image = vec![target as f32; w * h];
         conv.convert(&image, Roi::full(w, h), 0, frame)?;
         self.inst.display.present(frame)?;
-        let level = self.setup.lut.inverse(target).round() as u32;
-        let (camera, exposure_s) = self.measure(name, level)?;
-        let meter = read_meter(&mut self.inst.meter, name, level)?
-            .and_then(|m| self.setup.mismatch_factor.map(|f| f * m.value));
+        let drive_level = self.setup.lut.inverse(target);
+        let level = drive_level.round() as u32;
+        let r = self.frame(name, level)?;
+        let spots = self
+            .spot_radiances(&r)
+            .into_iter()
+            .map(|(radiance, rect, name)| SpotResult {
+                name: name.into(),
+                rect,
+                radiance,
+                error_percent: 100.0 * (radiance / target - 1.0),
+            })
+            .collect();
+        let meter = self.meter(name, level)?;
+        let lut_u = self.setup.lut.uncertainty_k2_percent(target).unwrap_or(0.0);
+        let r_u = self.setup.camera.responsivity.uncertainty_k2_percent;
+        let override_u = self.setup.cfg.verify.max_error_percent;
         Ok(Patch {
             target,
-            camera,
-            camera_error_percent: 100.0 * (camera / target - 1.0),
+            drive_level,
+            spots,
             meter,
             meter_error_percent: meter.map(|m| 100.0 * (m / target - 1.0)),
-            exposure_s,
+            camera_threshold_percent: override_u.unwrap_or(lut_u.hypot(r_u)),
+            meter_threshold_percent: self
+                .setup
+                .meter_uncertainty_k2_percent
+                .map(|m| override_u.unwrap_or(lut_u.hypot(m)))
+                .or(override_u),
+            exposure_s: r.frame.exposure_s,
         })
     }
 
-    /// One drive level shown flat, against the LUT's radiance there.
+    /// One drive level shown flat, against the LUT's radiance there
+    /// (relative: the radiometric scale).
     fn drift(&mut self, name: &str, level: u32) -> Result<DriftPoint> {
         show_level(self.inst.display, level, self.setup.lut.bits())?;
-        let (measured, _) = self.measure(name, level)?;
+        let r = self.frame(name, level)?;
+        let d = r.dark.as_deref().map(|d| d.as_slice());
+        let stats = super::region_stats(&r.frame, d, self.rect)?;
+        let measured = stats.mean / r.frame.exposure_s * self.setup.camera_scale;
         let lut = self.setup.lut.radiance(level as f64);
         if !(lut > 0.0) {
             return Err(Error::invalid(
@@ -155,6 +345,17 @@ impl Session<'_, '_> {
             measured,
             drift_percent: 100.0 * (measured / lut - 1.0),
         })
+    }
+}
+
+/// The smallest rectangle holding both.
+fn union(a: Rect, b: Rect) -> Rect {
+    let (x, y) = (a.x.min(b.x), a.y.min(b.y));
+    Rect {
+        x,
+        y,
+        w: (a.x + a.w).max(b.x + b.w) - x,
+        h: (a.y + a.h).max(b.y + b.h) - y,
     }
 }
 
@@ -173,20 +374,18 @@ pub fn run(
         ConvertSettings::default(),
         setup.screen,
     )?;
-    let probe = inst.camera.capture(&crate::instruments::CaptureRequest {
-        pattern: "verify_probe".into(),
-        exposure_s: cfg.camera.exposure,
-        shutter: Default::default(),
-    })?;
+    let probe = inst
+        .camera
+        .capture(&crate::instruments::CaptureRequest::light(
+            "verify_probe",
+            cfg.camera.exposure,
+        ))?;
     let mut session = Session {
         inst,
         setup,
-        auto: AutoExposure {
-            fill: cfg.target_fill,
-            min: 1e-6_f64.min(cfg.camera.exposure),
-            max: cfg.max_exposure,
-        },
+        auto: AutoExposure::of(cfg),
         rect: Rect::from_fractions(cfg.region, probe.width, probe.height),
+        spots: spots(&setup.camera, cfg, probe.width, probe.height)?,
     };
     let tl = targets(&setup.lut, cfg.verify.patches);
     let bar = progress((tl.len() + cfg.verify.drift_levels.len()) as u64, "verify");
@@ -204,8 +403,8 @@ pub fn run(
         };
         bar.inc(1);
         bar.set_message(format!(
-            "patch {i}: target {target:.4e}, camera {:+.2} %",
-            p.camera_error_percent
+            "patch {i}: target {target:.4e}, camera centre {:+.2} %",
+            p.spots.first().map_or(f64::NAN, |s| s.error_percent)
         ));
         patches.push(p);
     }
@@ -224,15 +423,31 @@ pub fn run(
         drift.push(d);
     }
     bar.finish_and_clear();
-    Ok(VerifyReport::new(patches, drift, cfg))
+    Ok(VerifyReport::new(patches, drift, setup))
 }
 
 impl VerifyReport {
-    fn new(patches: Vec<Patch>, drift: Vec<DriftPoint>, cfg: &CalibrateConfig) -> Self {
-        let max_error = patches
-            .iter()
-            .flat_map(|p| std::iter::once(p.camera_error_percent).chain(p.meter_error_percent))
-            .fold(0.0f64, |a, e| a.max(e.abs()));
+    fn new(patches: Vec<Patch>, drift: Vec<DriftPoint>, setup: &VerifySetup) -> Self {
+        let cfg = setup.cfg;
+        let mut failures = 0;
+        let (mut max_error, mut cam_sum, mut cam_n) = (0.0f64, 0.0, 0usize);
+        let (mut meter_sum, mut meter_n) = (0.0, 0usize);
+        for p in &patches {
+            for s in &p.spots {
+                max_error = max_error.max(s.error_percent.abs());
+                cam_sum += s.error_percent;
+                cam_n += 1;
+                failures += usize::from(!(s.error_percent.abs() <= p.camera_threshold_percent));
+            }
+            if let Some(e) = p.meter_error_percent {
+                max_error = max_error.max(e.abs());
+                meter_sum += e;
+                meter_n += 1;
+                if let Some(t) = p.meter_threshold_percent {
+                    failures += usize::from(!(e.abs() <= t));
+                }
+            }
+        }
         let max_drift = drift
             .iter()
             .fold(0.0f64, |a, d| a.max(d.drift_percent.abs()));
@@ -240,25 +455,45 @@ impl VerifyReport {
             patches,
             drift,
             max_error_percent: max_error,
-            threshold_percent: cfg.verify.max_error_percent,
+            mean_camera_error_percent: cam_sum / cam_n.max(1) as f64,
+            mean_meter_error_percent: (meter_n > 0).then(|| meter_sum / meter_n as f64),
+            threshold_override_percent: cfg.verify.max_error_percent,
+            responsivity_uncertainty_k2_percent: setup.camera.responsivity.uncertainty_k2_percent,
+            lut_uncertainty: setup
+                .lut
+                .uncertainty_k2_percent(setup.lut.max_radiance())
+                .is_some(),
+            failures,
             max_drift_percent: max_drift,
             drift_warn_percent: cfg.verify.drift_warn_percent,
             drift_warning: max_drift > cfg.verify.drift_warn_percent,
-            passed: max_error <= cfg.verify.max_error_percent,
+            passed: failures == 0,
         }
     }
 }
 
 /// A short table of the report for the terminal.
 pub fn summary(r: &VerifyReport) -> String {
-    let mut s = String::from("target (W m-2 sr-1)   camera     meter\n");
+    let mut s = String::from(
+        "target (W m-2 sr-1)  level    camera: centre  up-left  up-right  lo-left  lo-right  (± U)      meter (± U)\n",
+    );
     for p in &r.patches {
+        let spots: Vec<String> = p
+            .spots
+            .iter()
+            .map(|s| format!("{:+7.3}", s.error_percent))
+            .collect();
         s.push_str(&format!(
-            "{:>18.5e}  {:>+8.3} %  {}\n",
+            "{:>18.5e}  {:>6.2}  {} %  (± {:.2} %)  {}\n",
             p.target,
-            p.camera_error_percent,
-            p.meter_error_percent
-                .map_or("      -".into(), |m| format!("{m:>+8.3} %"))
+            p.drive_level,
+            spots.join("  "),
+            p.camera_threshold_percent,
+            match (p.meter_error_percent, p.meter_threshold_percent) {
+                (Some(m), Some(t)) => format!("{m:+.3} % (± {t:.2} %)"),
+                (Some(m), None) => format!("{m:+.3} % (no declared uncertainty)"),
+                _ => "-".into(),
+            }
         ));
     }
     for d in &r.drift {
@@ -268,9 +503,20 @@ pub fn summary(r: &VerifyReport) -> String {
         ));
     }
     s.push_str(&format!(
-        "max |error| {:.3} % (threshold {} %): {}; max |drift| {:.3} % (warn above {} %){}\n",
+        "mean camera error {:+.3} %{}; max |error| {:.3} %; {} beyond threshold ({}): {}; max |drift| {:.3} % (warn above {} %){}\n",
+        r.mean_camera_error_percent,
+        r.mean_meter_error_percent
+            .map_or(String::new(), |m| format!(", meter {m:+.3} %")),
         r.max_error_percent,
-        r.threshold_percent,
+        r.failures,
+        match r.threshold_override_percent {
+            Some(t) => format!("override {t} %"),
+            None => format!(
+                "uncertainty budget: responsivity {:.2} % (k = 2){}",
+                r.responsivity_uncertainty_k2_percent,
+                if r.lut_uncertainty { " with the LUT's per-level uncertainty" } else { "; the LUT gives no uncertainty" }
+            ),
+        },
         if r.passed { "PASS" } else { "FAIL" },
         r.max_drift_percent,
         r.drift_warn_percent,
@@ -281,4 +527,67 @@ pub fn summary(r: &VerifyReport) -> String {
         }
     ));
     s
+}
+
+/// verify.png: achieved/target − 1 per patch against the target radiance,
+/// the camera's spots and the meter, each with its ± threshold band.
+pub fn plot(r: &VerifyReport, path: &Path) -> Result<()> {
+    let band = |f: &dyn Fn(&Patch) -> Option<f64>, sign: f64| -> Vec<(f64, f64)> {
+        r.patches
+            .iter()
+            .filter_map(|p| f(p).map(|t| (p.target, sign * t)))
+            .collect()
+    };
+    let mut camera: Vec<Series> = (0..SPOTS.len())
+        .map(|k| {
+            Series::line_points(
+                SPOTS[k].0,
+                r.patches
+                    .iter()
+                    .filter_map(|p| p.spots.get(k).map(|s| (p.target, s.error_percent)))
+                    .collect(),
+            )
+        })
+        .collect();
+    let grey = plotters::style::RGBColor(120, 120, 120);
+    let cam_t = |p: &Patch| Some(p.camera_threshold_percent);
+    camera.push(Series::line("± threshold (k = 2)", band(&cam_t, 1.0)).with_colour(grey));
+    camera.push(Series::line("", band(&cam_t, -1.0)).with_colour(grey));
+    let met_t = |p: &Patch| p.meter_threshold_percent;
+    let meter = vec![
+        Series::line_points(
+            "meter",
+            r.patches
+                .iter()
+                .filter_map(|p| p.meter_error_percent.map(|e| (p.target, e)))
+                .collect(),
+        ),
+        Series::line("± threshold (k = 2)", band(&met_t, 1.0)).with_colour(grey),
+        Series::line("", band(&met_t, -1.0)).with_colour(grey),
+    ];
+    log_x_panels(
+        path,
+        &LogXPanels {
+            title: format!(
+                "Verify: achieved/target − 1 (mean camera {:+.2} %, {} beyond threshold: {})",
+                r.mean_camera_error_percent,
+                r.failures,
+                if r.passed { "PASS" } else { "FAIL" }
+            ),
+            x_label: "target screen radiance (W m⁻² sr⁻¹)".into(),
+            panels: vec![
+                Panel {
+                    y_label: "camera (responsivity): achieved/target − 1 (%)".into(),
+                    log_y: false,
+                    series: camera,
+                },
+                Panel {
+                    y_label: "meter: achieved/target − 1 (%)".into(),
+                    log_y: false,
+                    series: meter,
+                },
+            ],
+            size: (1300, 600),
+        },
+    )
 }

@@ -10,15 +10,19 @@ use anyhow::{bail, Context, Result};
 
 use optistim::calibration::checkpoint::{fingerprint, Checkpoint};
 use optistim::calibration::config::{calibrate_table, CalibrateConfig};
+use optistim::calibration::dark::DarkBank;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
-use optistim::calibration::{flat, geometric, radiometric, sleep, verify, Instruments};
+use optistim::calibration::responsivity::CameraResponsivity;
+use optistim::calibration::{
+    flat, geometric, radiometric, sleep, verify, AutoExposure, Instruments,
+};
 use optistim::facility::config::FacilityConfig;
 use optistim::facility::display::{Display, WindowDisplay, WindowOptions};
 use optistim::facility::geometry::GeometryCalibration;
 use optistim::facility::lut::{DisplayLut, FlatField};
 use optistim::instruments::config::{open_camera, open_spot_meter, DarkSource};
 use optistim::instruments::intrinsics::CameraIntrinsics;
-use optistim::instruments::{Camera, CaptureRequest, SpotMeter};
+use optistim::instruments::{Camera, SpotMeter};
 use optistim::radiometry::spectrum::Table;
 use optistim::scene::Scene;
 use optistim::simfacility::SimFacility;
@@ -82,10 +86,12 @@ fn open_rig(args: &CalibrateArgs, fac: &FacilityConfig, cfg: &CalibrateConfig) -
         return Ok(Rig {
             display: Box::new(sim.display()),
             camera: Box::new(sim.camera()),
-            meter: cfg
-                .meter
-                .as_ref()
-                .map(|_| Box::new(sim.meter()) as Box<dyn SpotMeter>),
+            meter: cfg.meter.as_ref().map(|m| {
+                Box::new(ScaledMeter {
+                    inner: sim.meter(),
+                    scale: m.unit_scale,
+                }) as Box<dyn SpotMeter>
+            }),
             sim: Some(sim),
         });
     }
@@ -108,6 +114,31 @@ fn open_rig(args: &CalibrateArgs, fac: &FacilityConfig, cfg: &CalibrateConfig) -
     })
 }
 
+/// The simulated meter with `calibrate.meter.unit_scale` applied, as the
+/// serial meter applies it (reading = instrument value × unit_scale).
+struct ScaledMeter<M> {
+    inner: M,
+    scale: f64,
+}
+
+impl<M: SpotMeter> SpotMeter for ScaledMeter<M> {
+    fn measure(&mut self) -> optistim::Result<optistim::instruments::SpotReading> {
+        let mut r = self.inner.measure()?;
+        r.value *= self.scale;
+        if let Some(s) = &mut r.spectrum {
+            s.iter_mut().for_each(|p| p.1 *= self.scale);
+        }
+        Ok(r)
+    }
+    fn describe(&self) -> String {
+        if self.scale == 1.0 {
+            self.inner.describe()
+        } else {
+            format!("{} × unit_scale {}", self.inner.describe(), self.scale)
+        }
+    }
+}
+
 /// Asks the operator to do something and waits for Enter.
 fn ask(what: &str) -> optistim::Result<()> {
     eprint!("optistim calibrate: {what}, then press Enter ");
@@ -120,28 +151,30 @@ fn ask(what: &str) -> optistim::Result<()> {
     Ok(())
 }
 
-/// The camera's dark frame: a file, or one captured with the camera covered.
-fn dark_frame(cfg: &CalibrateConfig, rig: &mut Rig) -> Result<Option<Vec<f32>>> {
-    match &cfg.camera.dark {
-        None => Ok(None),
-        Some(DarkSource::File(p)) => {
-            let f = optistim::instruments::frame::read_frame(p)?;
-            Ok(Some(f.2))
-        }
+/// The campaign's dark frames (`calibrate.camera.dark`).
+fn dark_bank(cfg: &CalibrateConfig, rig: &mut Rig) -> Result<DarkBank> {
+    let frames = cfg.camera.dark_frames;
+    let operator = rig.sim.is_none();
+    Ok(match &cfg.camera.dark {
+        None => bail!("calibrate.camera.dark: missing; say \"shutter\", \"capture\", a dark model file, or \"none\""),
+        Some(DarkSource::None) => DarkBank::none(),
+        Some(DarkSource::Shutter) => DarkBank::shutter(frames),
+        Some(DarkSource::File(p)) => DarkBank::from_file(p, &rig.camera.describe())?,
         Some(DarkSource::Capture) => {
-            if rig.sim.is_some() {
-                bail!("calibrate.camera.dark = \"capture\" needs an operator to cover the camera; the simulated facility has none (leave `dark` out: its bias is known)");
-            }
-            ask("cover the camera (no light at all) for its dark frame")?;
-            let f = rig.camera.capture(&CaptureRequest {
-                pattern: "dark".into(),
-                exposure_s: cfg.camera.exposure,
-                shutter: optistim::instruments::Shutter::Closed,
-            })?;
-            ask("uncover the camera")?;
-            Ok(Some(f.data))
+            // The simulated camera's closed shutter stands in for the cover.
+            let mut cover = |on: bool| {
+                if !operator {
+                    Ok(())
+                } else if on {
+                    ask("cover the camera (no light at all) for its dark frames")
+                } else {
+                    ask("uncover the camera")
+                }
+            };
+            let ladder = AutoExposure::of(cfg).ladder();
+            DarkBank::capture_ladder(rig.camera.as_mut(), &ladder, frames, &mut cover)?
         }
-    }
+    })
 }
 
 /// `optistim calibrate`.
@@ -181,7 +214,7 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
             ckpt_path.display()
         );
     }
-    let dark = dark_frame(&cfg, &mut rig)?;
+    let mut darks = dark_bank(&cfg, &mut rig)?;
     let sim = rig.sim.clone();
     let mut wait = move |s: f64| match &sim {
         Some(f) => f.advance(s),
@@ -191,14 +224,13 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
         display: rig.display.as_mut(),
         camera: rig.camera.as_mut(),
         meter: rig.meter.as_mut().map(|m| m.as_mut() as &mut dyn SpotMeter),
+        darks: &mut darks,
         wait: &mut wait,
     };
     match args.routine {
-        Routine::Radiometric => {
-            run_radiometric(&fac, &cfg, &args.facility, &mut inst, &mut ckpt, dark)
-        }
-        Routine::Flat => run_flat(&fac, &cfg, rig.sim.as_ref(), &mut inst, &mut ckpt, dark),
-        Routine::Verify => run_verify(&fac, &cfg, &mut inst, &mut ckpt, dark),
+        Routine::Radiometric => run_radiometric(&fac, &cfg, &args.facility, &mut inst, &mut ckpt),
+        Routine::Flat => run_flat(&fac, &cfg, &mut inst, &mut ckpt),
+        Routine::Verify => run_verify(&fac, &cfg, &mut inst, &mut ckpt),
         Routine::Geometric => unreachable!("handled above"),
     }
 }
@@ -209,7 +241,6 @@ fn run_radiometric(
     facility: &Path,
     inst: &mut Instruments,
     ckpt: &mut Checkpoint,
-    dark: Option<Vec<f32>>,
 ) -> Result<()> {
     let scene = Scene::from_file(&fac.scenario.scene)?;
     let meter_response = match cfg
@@ -237,7 +268,6 @@ fn run_radiometric(
         spectral: Some(CameraSpectral::from_scene(&scene)),
         meter_response,
         screen_spectrum,
-        dark,
         screen_power: Some(&mut power),
         source: facility.display().to_string(),
     };
@@ -262,59 +292,34 @@ fn run_radiometric(
     Ok(())
 }
 
-/// Camera pixel → direction: the intrinsics file, else (simulated
-/// facility) the simulated camera's own intrinsics.
-fn intrinsics(cfg: &CalibrateConfig, sim: Option<&SimFacility>) -> Result<CameraIntrinsics> {
-    if let Some(p) = &cfg.camera.intrinsics {
-        return Ok(CameraIntrinsics::load(p)?);
-    }
-    match sim {
-        Some(s) => {
-            let c = &s.config().camera;
-            // The simulation's (cx, cy) put pixel centres at +0.5; OpenCV's
-            // at integers.
-            Ok(CameraIntrinsics {
-                width: c.resolution[0],
-                height: c.resolution[1],
-                camera_matrix: [[c.fx, 0.0, c.cx - 0.5], [0.0, c.fy, c.cy - 0.5], [0.0, 0.0, 1.0]],
-                distortion: [c.k1, c.k2, c.p1, c.p2, 0.0],
-            })
-        }
-        None => bail!("calibrate.camera.intrinsics: missing; the flat field maps camera pixels to the screen through it"),
+/// Camera pixel → direction: the camera's intrinsics file (from its own
+/// geometric calibration; never the simulator's truth).
+fn intrinsics(cfg: &CalibrateConfig) -> Result<CameraIntrinsics> {
+    match &cfg.camera.intrinsics {
+        Some(p) => Ok(CameraIntrinsics::load(p)?),
+        None => bail!("calibrate.camera.intrinsics: missing; the flat field maps camera pixels to the screen through the camera's intrinsics file"),
     }
 }
 
 fn run_flat(
     fac: &FacilityConfig,
     cfg: &CalibrateConfig,
-    sim: Option<&SimFacility>,
     inst: &mut Instruments,
     ckpt: &mut Checkpoint,
-    dark: Option<Vec<f32>>,
 ) -> Result<()> {
     let screen = fac.screen_size();
     let gpath = fac.calibration.geometry.as_ref().context(
         "calibration.geometry: missing; run `optistim calibrate geometric` first and set it, or give --geometry",
     )?;
     let geometry = GeometryCalibration::load(gpath, screen)?;
-    let k = intrinsics(cfg, sim)?;
+    let k = intrinsics(cfg)?;
     let direction = move |x: f64, y: f64| match k.pixel_to_direction(x, y) {
         Some(d) => (d.x / d.z, d.y / d.z),
         None => (f64::NAN, f64::NAN),
     };
     let camera_flat = match &cfg.flat.camera_flat {
-        Some(p) => {
-            let f = optistim::instruments::frame::read_frame(p)?;
-            Some(f.2)
-        }
-        None if sim.is_some() => {
-            // The simulated camera's own flat, as its calibration would give it.
-            sim.map(|s| s.camera_flat())
-        }
-        None => {
-            tracing::warn!("calibrate.flat.camera_flat not given: the camera's own vignetting and PRNU will be taken for the screen's");
-            None
-        }
+        Some(p) => Some(optistim::instruments::frame::read_frame(p)?.2),
+        None => bail!("calibrate.flat.camera_flat: missing; the camera's own flat (vignetting × PRNU, from its lab calibration) must be divided out"),
     };
     let setup = flat::FlatSetup {
         cfg,
@@ -323,7 +328,6 @@ fn run_flat(
         pixel_direction: &direction,
         geometry: &geometry,
         camera_flat,
-        dark,
     };
     let (gains, report) = flat::run(inst, &setup, ckpt)?;
     let tif = cfg.out_dir.join("flat_field.tif");
@@ -351,7 +355,6 @@ fn run_verify(
     cfg: &CalibrateConfig,
     inst: &mut Instruments,
     ckpt: &mut Checkpoint,
-    dark: Option<Vec<f32>>,
 ) -> Result<()> {
     let screen = fac.screen_size();
     let lut = DisplayLut::load(&fac.calibration.lut, fac.drive.bits)?;
@@ -376,21 +379,47 @@ fn run_verify(
             rep.scale
         );
     }
+    let responsivity = match &cfg.camera.responsivity {
+        Some(p) => CameraResponsivity::load(p)?,
+        None => bail!("calibrate.camera.responsivity: missing; verify measures the screen through the camera's own absolute responsivity (a lab calibration), not the radiometric calibration's scale"),
+    };
+    let k = intrinsics(cfg)?;
+    let direction = move |x: f64, y: f64| match k.pixel_to_direction(x, y) {
+        Some(d) => (d.x / d.z, d.y / d.z),
+        None => (f64::NAN, f64::NAN),
+    };
+    let camera_flat = match &cfg.flat.camera_flat {
+        Some(p) => optistim::instruments::frame::read_frame(p)?.2,
+        None => bail!("calibrate.flat.camera_flat: missing; verify divides the camera's own flat out of each spot"),
+    };
+    let scene = Scene::from_file(&fac.scenario.scene)?;
     let setup = verify::VerifySetup {
         cfg,
         lut,
         flat,
         screen,
         camera_scale: rep.scale,
+        camera: verify::AbsoluteCamera {
+            responsivity,
+            transmission: fac.collimator.transmission,
+            camera_flat,
+            pixel_direction: &direction,
+        },
         mismatch_factor: rep.mismatch_factor,
-        dark,
+        spectral: Some(CameraSpectral::from_scene(&scene)),
+        meter_uncertainty_k2_percent: cfg
+            .meter
+            .as_ref()
+            .and_then(|m| m.scale_uncertainty_k2_percent),
     };
     let report = verify::run(inst, &setup, ckpt)?;
     let json = cfg.out_dir.join("verify_report.json");
     std::fs::write(&json, serde_json::to_string_pretty(&report)?)
         .with_context(|| format!("writing {}", json.display()))?;
+    let png = cfg.out_dir.join("verify.png");
+    verify::plot(&report, &png)?;
     print!("{}", verify::summary(&report));
-    println!("report {}", json.display());
+    println!("report {}, figure {}", json.display(), png.display());
     if report.drift_warning {
         tracing::warn!(
             "drift {:.3} % beyond calibrate.verify.drift_warn_percent {} %: recalibrate",
@@ -400,9 +429,9 @@ fn run_verify(
     }
     if !report.passed {
         bail!(
-            "verification failed: max |achieved/target − 1| {:.3} % above calibrate.verify.max_error_percent {} %",
-            report.max_error_percent,
-            report.threshold_percent
+            "verification failed: {} measurements beyond their threshold (max |achieved/target − 1| {:.3} %)",
+            report.failures,
+            report.max_error_percent
         );
     }
     Ok(())

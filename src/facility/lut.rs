@@ -52,6 +52,9 @@ use crate::infile::csv_table;
 
 /// Exact header line of a LUT file.
 pub const LUT_HEADER: &str = "drive_level,radiance_w_m2_sr";
+/// The header of a LUT with the optional per-level expanded uncertainty
+/// (k = 2, % of the radiance) written by `optistim calibrate radiometric`.
+pub const LUT_HEADER_UNCERTAINTY: &str = "drive_level,radiance_w_m2_sr,uncertainty_k2_percent";
 
 /// Hex SHA-256 of `bytes`.
 pub fn sha256_hex(bytes: &[u8]) -> String {
@@ -150,6 +153,9 @@ pub struct DisplayLut {
     curve: Pchip,
     level_radiance: Vec<f64>,
     inverse: Vec<f64>,
+    /// Per measured level: (level, expanded uncertainty k = 2, %), when
+    /// the file has the third column.
+    uncertainty: Option<Vec<(f64, f64)>>,
 }
 
 impl DisplayLut {
@@ -170,25 +176,31 @@ impl DisplayLut {
             Error::parse(path, format!("empty file: expected header `{LUT_HEADER}`"))
         })?;
         let hl = header.line;
-        if header.joined() != LUT_HEADER {
+        let with_u = header.joined() == LUT_HEADER_UNCERTAINTY;
+        if header.joined() != LUT_HEADER && !with_u {
             return Err(err(
                 hl,
                 format!(
-                    "header must be `{LUT_HEADER}`, found `{}`",
+                    "header must be `{LUT_HEADER}` (optionally `,uncertainty_k2_percent`), found `{}`",
                     crate::error::abbreviate(&header.joined(), 60)
                 ),
             ));
         }
         let mut xs: Vec<f64> = Vec::new();
         let mut ys: Vec<f64> = Vec::new();
+        let mut us: Vec<(f64, f64)> = Vec::new();
         let mut last_line = hl;
         for row in rows {
             let row = row?;
             let ln = row.line;
             last_line = ln;
             let cells: Vec<&str> = row.cells.iter().collect();
-            if cells.len() != 2 {
-                return Err(err(ln, format!("expected 2 fields, found {}", cells.len())));
+            let fields = if with_u { 3 } else { 2 };
+            if cells.len() != fields {
+                return Err(err(
+                    ln,
+                    format!("expected {fields} fields, found {}", cells.len()),
+                ));
             }
             let num = |s: &str, what: &str| -> Result<f64> {
                 let v: f64 = s.parse().map_err(|_| {
@@ -244,6 +256,16 @@ impl DisplayLut {
                     ),
                 ));
             }
+            if with_u {
+                let u = num(cells[2], "uncertainty_k2_percent")?;
+                if !(0.0..=1000.0).contains(&u) {
+                    return Err(err(
+                        ln,
+                        format!("uncertainty_k2_percent: {u} is not in [0, 1000]"),
+                    ));
+                }
+                us.push((x, u));
+            }
             xs.push(x);
             ys.push(y);
         }
@@ -270,6 +292,7 @@ impl DisplayLut {
             ));
         }
         let mut lut = DisplayLut::build(xs, ys, bits)?;
+        lut.uncertainty = with_u.then_some(us);
         lut.path = path.to_path_buf();
         lut.sha256 = sha256_hex(bytes);
         Ok(lut)
@@ -313,7 +336,20 @@ impl DisplayLut {
             curve,
             level_radiance,
             inverse,
+            uncertainty: None,
         })
+    }
+
+    /// The expanded uncertainty (k = 2, %) of the radiance at `radiance`:
+    /// the file's column interpolated linearly in drive level at the
+    /// LUT's inverse; `None` for a LUT without the column.
+    pub fn uncertainty_k2_percent(&self, radiance: f64) -> Option<f64> {
+        let u = self.uncertainty.as_ref()?;
+        let level = self.inverse(radiance);
+        let k = u.partition_point(|p| p.0 <= level).clamp(1, u.len() - 1);
+        let ((x0, u0), (x1, u1)) = (u[k - 1], u[k]);
+        let w = ((level - x0) / (x1 - x0)).clamp(0.0, 1.0);
+        Some(u0 + w * (u1 - u0))
     }
 
     /// File the LUT was read from.
@@ -611,6 +647,25 @@ mod tests {
             k = (k + step).min(255);
         }
         s
+    }
+
+    #[test]
+    fn optional_uncertainty_column_is_read_and_interpolated() {
+        let text = format!("{LUT_HEADER_UNCERTAINTY}\n0,1.0,4.0\n100,2.0,2.0\n255,3.0,1.0\n");
+        let lut = DisplayLut::from_csv_bytes(text.as_bytes(), "u.csv", 8).unwrap();
+        // At level 50 (half-way between the first two rows): 3 %.
+        let l50 = lut.radiance(50.0);
+        assert!((lut.uncertainty_k2_percent(l50).unwrap() - 3.0).abs() < 1e-3);
+        assert_eq!(lut.uncertainty_k2_percent(3.0), Some(1.0));
+        let old = DisplayLut::from_csv_bytes(gamma_csv(5).as_bytes(), "o.csv", 8).unwrap();
+        assert_eq!(old.uncertainty_k2_percent(1.0), None);
+        for (bad, what) in [("4.0\n100", "expected 3 fields"), ("4.0", "")] {
+            let t = text.replacen(",4.0", if what.is_empty() { ",-4.0" } else { "" }, 1);
+            let e = DisplayLut::from_csv_bytes(t.as_bytes(), "u.csv", 8)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("u.csv") && e.contains("line 2"), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -35,8 +35,10 @@
 //! exposure = 0.01               # s
 //! saturation_dn = 65535
 //! # resolution = [1024, 1024]   # expected frame size, checked on every frame
-//! # dark = "dark.fits"          # or "capture": take a dark frame with the screen black
+//! dark = "shutter"              # "shutter" | "capture" | "none" | a dark model file (TOML)
+//! dark_frames = 4               # closed-shutter frames averaged per exposure
 //! # intrinsics = "navcam_intrinsics.toml"
+//! # responsivity = "navcam_responsivity.toml"  # absolute DN/s per W m⁻² sr⁻¹ (verify)
 //! ```
 //!
 //! Unknown keys are errors; [`SpotMeterConfig::validate`] and
@@ -99,6 +101,10 @@ pub struct SpotMeterConfig {
     /// a spectroradiometer's spectrum values are scaled by it too).
     #[serde(default = "one_f64")]
     pub unit_scale: f64,
+    /// Expanded uncertainty (k = 2, %) of the meter's own calibration
+    /// (its absolute scale), for the uncertainty budget.
+    #[serde(default)]
+    pub scale_uncertainty_k2_percent: Option<f64>,
     /// Wait before each command, s.
     #[serde(default)]
     pub settle: f64,
@@ -248,23 +254,31 @@ impl FrameExtension {
     ];
 }
 
-/// Where the dark frame comes from.
+/// Where the dark frames (bias + dark current at each exposure) come from.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(from = "PathBuf")]
 pub enum DarkSource {
-    /// An image file (same formats as frames), DN at the configured exposure.
-    File(PathBuf),
-    /// `"capture"`: the calibration takes one with the screen black
-    /// (write `"./capture"` for a file of that name).
+    /// `"shutter"`: the camera closes its shutter; darks are taken at each
+    /// exposure the campaign uses, when first needed.
+    Shutter,
+    /// `"capture"`: the operator covers the camera once and darks are taken
+    /// at every exposure of the ladder before the campaign.
     Capture,
+    /// `"none"`: no dark correction (said explicitly).
+    None,
+    /// A dark model file (TOML: camera, size, saturation and dark frames at
+    /// exposures; see [`DarkBank`](crate::calibration::dark::DarkBank)).
+    /// Write `"./shutter"` etc. for a file of a reserved name.
+    File(PathBuf),
 }
 
 impl From<PathBuf> for DarkSource {
     fn from(p: PathBuf) -> Self {
-        if p.as_os_str() == "capture" {
-            DarkSource::Capture
-        } else {
-            DarkSource::File(p)
+        match p.to_str() {
+            Some("shutter") => DarkSource::Shutter,
+            Some("capture") => DarkSource::Capture,
+            Some("none") => DarkSource::None,
+            _ => DarkSource::File(p),
         }
     }
 }
@@ -304,9 +318,16 @@ pub struct CameraConfig {
     /// Expected `[width, height]`; every frame is checked against it.
     #[serde(default, deserialize_with = "exact_pair")]
     pub resolution: Option<[usize; 2]>,
-    /// Dark frame: a file, or `"capture"`.
+    /// The dark model; required (`"none"` must be said explicitly).
     #[serde(default)]
     pub dark: Option<DarkSource>,
+    /// Closed-shutter frames averaged per exposure.
+    #[serde(default = "default_dark_frames")]
+    pub dark_frames: usize,
+    /// The camera's absolute responsivity file
+    /// ([`CameraResponsivity`](crate::calibration::responsivity::CameraResponsivity)).
+    #[serde(default)]
+    pub responsivity: Option<PathBuf>,
     /// Camera intrinsics file (see [`intrinsics`](super::intrinsics)).
     #[serde(default)]
     pub intrinsics: Option<PathBuf>,
@@ -325,6 +346,10 @@ fn exact_pair<'de, D: serde::Deserializer<'de>>(
             .map_err(|_| D::Error::custom(format!("expected [width, height], found {n} numbers")))
     })
     .transpose()
+}
+
+fn default_dark_frames() -> usize {
+    4
 }
 
 fn default_camera_name() -> String {
@@ -408,6 +433,9 @@ impl SpotMeterConfig {
         }
         text(&k("command"), &self.command, true)?;
         in_range(&k("unit_scale"), self.unit_scale, 1e-15, 1e15)?;
+        if let Some(u) = self.scale_uncertainty_k2_percent {
+            in_range(&k("scale_uncertainty_k2_percent"), u, 0.0, 100.0)?;
+        }
         in_range(&k("settle"), self.settle, 0.0, 600.0)?;
         in_range_open(&k("timeout"), self.timeout, 0.0, 600.0)?;
         if self.retries > 20 {
@@ -538,6 +566,12 @@ impl CameraConfig {
         }
         in_range_open(&k("timeout"), self.timeout, 0.0, 3600.0)?;
         in_range(&k("poll"), self.poll, 0.001, 10.0)?;
+        if !(1..=64).contains(&self.dark_frames) {
+            return Err(Error::invalid(
+                k("dark_frames"),
+                format!("must be 1..=64, found {}", self.dark_frames),
+            ));
+        }
         in_range_open(&k("exposure"), self.exposure, 0.0, 3600.0)?;
         in_range_open(&k("saturation_dn"), self.saturation_dn, 0.0, 1e9)?;
         if let Some([w, h]) = self.resolution {
@@ -564,6 +598,9 @@ impl CameraConfig {
             fix(p, dir);
         }
         if let Some(p) = &mut self.intrinsics {
+            fix(p, dir);
+        }
+        if let Some(p) = &mut self.responsivity {
             fix(p, dir);
         }
     }
@@ -731,10 +768,15 @@ dark = "capture"
         assert_eq!(c.dark, Some(DarkSource::Capture));
         assert_eq!(c.file_stem("level_0001").unwrap(), "cal_level_0001");
         assert!(c.file_stem("../x").is_err());
-        let text = GOOD.replace("dark = \"capture\"", "dark = \"d.fits\"");
+        let text = GOOD.replace("dark = \"capture\"", "dark = \"d.toml\"");
         let (_, mut c) = parse(&text).unwrap();
         c.resolve_paths(Path::new("/base"));
-        assert_eq!(c.dark, Some(DarkSource::File("/base/d.fits".into())));
+        assert_eq!(c.dark, Some(DarkSource::File("/base/d.toml".into())));
+        for (word, want) in [("shutter", DarkSource::Shutter), ("none", DarkSource::None)] {
+            let (_, c) = parse(&GOOD.replace("\"capture\"", &format!("\"{word}\""))).unwrap();
+            assert_eq!(c.dark, Some(want));
+        }
+
         assert_eq!(c.dir, Some(PathBuf::from("/base/frames")));
     }
 
