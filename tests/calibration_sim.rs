@@ -52,10 +52,12 @@ levels = 33
 repeats = 2
 settle = 0.5
 screen_spectrum = "data/display/lcd_white_apple_studio_display.csv"
+screen_spectrum_uncertainty_nm = 1.0
 
 [calibrate.meter]
 kind = "sim"
 spectral_response = "configs/meter_flat_380_780.csv"
+scale_uncertainty_k2_percent = 1.0
 
 [calibrate.camera]
 kind = "sim"
@@ -224,6 +226,37 @@ fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent()
         report.drift_percent
     );
     assert!(rms < 0.005, "LUT RMS error {:.3} %", 100.0 * rms);
+    // The budget: the declared meter uncertainty, F's change for the
+    // spectrum shifted by its declared 1 nm (computed here from the
+    // spectra), and a per-level total that covers the LUT's true error.
+    let b = &report.budget;
+    assert_eq!(b.meter_scale_k2_percent, Some(1.0));
+    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let spectral = CameraSpectral::from_scene(&scene);
+    let m = Table::from_csv(Path::new(METER_RESPONSE)).unwrap();
+    let f0 = spectral.mismatch_factor(&screen_spectrum(0.0), &m).unwrap();
+    let df = [-1.0, 1.0]
+        .map(|d| (spectral.mismatch_factor(&screen_spectrum(d), &m).unwrap() / f0 - 1.0).abs());
+    let expect = 100.0 * df[0].max(df[1]);
+    assert!(
+        (b.mismatch_k2_percent.unwrap() - expect).abs() < 1e-9,
+        "{b:?}"
+    );
+    let (mut covered, mut n) = (0, 0);
+    for l in &report.levels {
+        let truth = sim.true_camera_effective_radiance(l.level as usize, (u, v));
+        if truth > 0.01 * top {
+            n += 1;
+            let e = 100.0 * (l.radiance / truth - 1.0);
+            covered += usize::from(e.abs() <= l.uncertainty.total_k2_percent);
+        }
+    }
+    println!(
+        "budget: {}; top level U = {:.3} %; {covered} of {n} levels' true errors within U",
+        b.describe(),
+        report.levels.last().unwrap().uncertainty.total_k2_percent
+    );
+    assert!(covered as f64 >= 0.95 * n as f64, "{covered} of {n}");
 }
 
 /// The flat field of the simulated facility, with the geometry written from
@@ -314,11 +347,15 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
         }
     }
     println!(
-        "simulated flat field: gain/truth varies by {:.3} % over the seen area {:?} (13-point non-uniformity {:.2} %)",
+        "simulated flat field: gain/truth varies by {:.3} % over the seen area {:?} (13-point non-uniformity {:.2} %, declared uncertainty {:.3} % k = 2)",
         100.0 * (hi / lo - 1.0),
         report.seen,
-        report.nonuniformity_13_percent
+        report.nonuniformity_13_percent,
+        report.uncertainty_k2_percent
     );
+    // The declared uncertainty covers the shape error (a spread hi/lo of
+    // the ratio is at most twice the error of either end).
+    assert!(100.0 * (hi / lo - 1.0) <= 2.0 * report.uncertainty_k2_percent);
     assert!(
         hi / lo - 1.0 < 0.003,
         "gain/truth spread {:.3} %",
