@@ -72,6 +72,12 @@ pub struct FlatReport {
     pub nonuniformity_13_percent: f64,
     /// Largest difference between the levels' gain maps over the seen area, %.
     pub level_disagreement_percent: f64,
+    /// Expanded uncertainty (k = 2) of the gain over the seen area, %: the
+    /// levels' disagreement and 2 × the fit's standard error (fit RMS ×
+    /// √(terms / pixels)) of the worst level, in quadrature. Relative to
+    /// the radiometric region (the LUT's scale is the LUT's uncertainty).
+    #[serde(default)]
+    pub uncertainty_k2_percent: f64,
     pub camera_flat: bool,
 }
 
@@ -560,6 +566,7 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
     Ok((
         gains,
         FlatReport {
+            uncertainty_k2_percent: flat_uncertainty(&fits, degree, disagree),
             levels: fits,
             degree,
             seen: map.seen,
@@ -571,6 +578,17 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
             camera_flat: setup.camera_flat.is_some(),
         },
     ))
+}
+
+/// The flat field's expanded uncertainty (k = 2), % (see
+/// [`FlatReport::uncertainty_k2_percent`]).
+fn flat_uncertainty(fits: &[LevelFit], degree: usize, disagreement_percent: f64) -> f64 {
+    let terms = terms(degree).len() as f64;
+    let fit = fits
+        .iter()
+        .map(|f| 2.0 * f.fit_rms_percent * (terms / f.pixels.max(1) as f64).sqrt())
+        .fold(0.0f64, f64::max);
+    fit.hypot(disagreement_percent)
 }
 
 /// Writes a Gray32Float TIFF of `gains` (`screen` size), as

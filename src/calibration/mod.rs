@@ -10,6 +10,7 @@
 //! | module | owns |
 //! |---|---|
 //! | [`config`] | the `[calibrate]` section of the facility file |
+//! | [`budget`] | the LUT's uncertainty budget (per level, k = 2) |
 //! | [`checkpoint`] | the crash-safe JSONL log of measurements, `--resume` |
 //! | [`dark`] | dark frames per exposure (bias + dark current), cached for a campaign |
 //! | [`mismatch`] | camera-effective radiance and the spectral mismatch factor F |
@@ -21,6 +22,7 @@
 //!
 //! The quantity and the methods are described in docs/CALIBRATION.md.
 
+pub mod budget;
 pub mod checkpoint;
 pub mod config;
 pub mod dark;

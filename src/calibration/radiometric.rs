@@ -19,12 +19,13 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::budget::{self, Budget, LevelUncertainty};
 use super::checkpoint::Checkpoint;
 use super::config::{level_ladder, top_level, AmbientMode, CalibrateConfig};
 use super::mismatch::{CameraSpectral, Spectrum};
 use super::{progress, read_meter, show_level, AutoExposure, Instruments, Rect};
 use crate::error::{Error, Result};
-use crate::facility::lut::{Pchip, LUT_HEADER};
+use crate::facility::lut::{Pchip, LUT_HEADER_UNCERTAINTY};
 use crate::figures::{curve_figure, CurveFigure, Panel, Series, PALETTE};
 use crate::radiometry::spectrum::Table;
 
@@ -84,6 +85,9 @@ pub struct LevelResult {
     pub loo_residual_percent: Option<f64>,
     /// Scatter of the repeats, % of the mean.
     pub repeat_scatter_percent: Option<f64>,
+    /// Expanded uncertainty of the LUT value and its per-level components.
+    #[serde(default)]
+    pub uncertainty: LevelUncertainty,
 }
 
 /// The report (also written as JSON).
@@ -100,6 +104,9 @@ pub struct Report {
     pub scale: f64,
     /// Spectral mismatch factor used (scalar meter).
     pub mismatch_factor: Option<f64>,
+    /// The scale-wide components of the uncertainty budget.
+    #[serde(default)]
+    pub budget: Budget,
     /// Ambient in camera-effective radiance (W m⁻² sr⁻¹), if measured.
     pub ambient_radiance: Option<f64>,
     pub black_radiance: f64,
@@ -166,7 +173,18 @@ pub fn run(inst: &mut Instruments, setup: &mut Setup, ckpt: &mut Checkpoint) -> 
         ));
     }
     let (rms, max) = leave_one_out(&mut levels)?;
+    let budget = Budget {
+        meter_scale_k2_percent: scale.meter_k2_percent,
+        mismatch_k2_percent: scale.mismatch_k2_percent,
+        scale_fit_k2_percent: scale.fit_k2_percent,
+        drift_k2_percent: budget::drift_k2_percent(drift_percent),
+    };
+    for l in &mut levels {
+        let rel = l.noise_dn_per_s / l.camera_dn_per_s;
+        l.uncertainty = budget.level(rel, l.loo_residual_percent);
+    }
     Ok(Report {
+        budget,
         repeats: cfg.repeats,
         reference_level: reference,
         drift_percent,
@@ -361,6 +379,7 @@ fn reduce(
                 radiance: 0.0,
                 loo_residual_percent: None,
                 repeat_scatter_percent: scatter,
+                uncertainty: LevelUncertainty::default(),
             })
         })
         .collect()
@@ -425,6 +444,10 @@ struct Scale {
     factor: f64,
     method: String,
     mismatch: Option<f64>,
+    /// Budget components, k = 2, %.
+    fit_k2_percent: f64,
+    meter_k2_percent: Option<f64>,
+    mismatch_k2_percent: Option<f64>,
 }
 
 /// Radiance per DN/s: least squares of the meter's camera-effective
@@ -449,17 +472,21 @@ fn absolute_scale(
             factor: r,
             method: format!("camera responsivity {r:e} W m⁻² sr⁻¹ per DN/s"),
             mismatch: None,
+            fit_k2_percent: 0.0,
+            meter_k2_percent: None,
+            mismatch_k2_percent: None,
         });
     }
     let _ = ambient;
     let (targets, method, mismatch) = meter_radiances(levels, setup)?;
     let top = levels.last().map_or(0.0, |l| l.camera_dn_per_s);
-    let (mut num, mut den) = (0.0, 0.0);
+    let (mut num, mut den, mut ratios) = (0.0, 0.0, Vec::new());
     for (l, t) in levels.iter().zip(&targets) {
         if let Some(t) = t {
             if l.camera_dn_per_s >= 0.1 * top {
                 num += l.camera_dn_per_s * t;
                 den += l.camera_dn_per_s * l.camera_dn_per_s;
+                ratios.push(t / l.camera_dn_per_s);
             }
         }
     }
@@ -469,10 +496,29 @@ fn absolute_scale(
                 .into(),
         ));
     }
+    let mismatch_k2_percent = match (
+        cfg.screen_spectrum_uncertainty_nm,
+        &setup.spectral,
+        &setup.meter_response,
+        &setup.screen_spectrum,
+    ) {
+        (Some(nm), Some(c), Some(m), Some(sp))
+            if mismatch.is_some() && cfg.mismatch_factor.is_none() =>
+        {
+            Some(budget::mismatch_sensitivity_percent(c, sp, m, nm)?)
+        }
+        _ => None,
+    };
     Ok(Scale {
         factor: num / den,
         method,
         mismatch,
+        fit_k2_percent: budget::scale_fit_k2_percent(&ratios),
+        meter_k2_percent: cfg
+            .meter
+            .as_ref()
+            .and_then(|m| m.scale_uncertainty_k2_percent),
+        mismatch_k2_percent,
     })
 }
 
@@ -634,10 +680,14 @@ pub fn lut_csv(r: &Report, setup: &Setup) -> String {
         "leave-one-out PCHIP residual over levels above 1 % of max: RMS {:.3} %, max {:.3} %",
         r.loo_rms_percent, r.loo_max_percent
     ));
-    t.push_str(LUT_HEADER);
+    line(r.budget.describe());
+    t.push_str(LUT_HEADER_UNCERTAINTY);
     t.push('\n');
     for l in &r.levels {
-        t.push_str(&format!("{},{:?}\n", l.level, l.radiance));
+        t.push_str(&format!(
+            "{},{:?},{:.4}\n",
+            l.level, l.radiance, l.uncertainty.total_k2_percent
+        ));
     }
     t
 }

@@ -284,6 +284,7 @@ fn run_radiometric(
         report.loo_max_percent,
         report.drift_percent
     );
+    println!("{}", report.budget.describe());
     println!(
         "report {}, plot {}; set `calibration.lut` to the LUT to use it",
         out.report.display(),
@@ -338,12 +339,13 @@ fn run_flat(
     );
     flat::write_report(&report, &gains, screen, &json, &png)?;
     println!(
-        "flat field {} (gain {:.4}..{:.4} over the area seen, 13-point non-uniformity {:.2} %, levels agree within {:.3} %); report {}, map {}; set `calibration.flat_field` to use it",
+        "flat field {} (gain {:.4}..{:.4} over the area seen, 13-point non-uniformity {:.2} %, levels agree within {:.3} %, uncertainty {:.3} % (k = 2)); report {}, map {}; set `calibration.flat_field` to use it",
         tif.display(),
         report.min_gain,
         report.max_gain,
         report.nonuniformity_13_percent,
         report.level_disagreement_percent,
+        report.uncertainty_k2_percent,
         json.display(),
         png.display()
     );
