@@ -124,6 +124,15 @@ pub struct FlatConfig {
     pub camera_flat: Option<PathBuf>,
     #[serde(default = "default_degree")]
     pub degree: usize,
+    /// Side [screen px] of the cells in which the residual about the
+    /// polynomial is kept (mura, finer than any low-order fit); 0: the
+    /// polynomial alone.
+    #[serde(default = "default_residual_cell_px")]
+    pub residual_cell_px: usize,
+}
+
+fn default_residual_cell_px() -> usize {
+    8
 }
 
 impl Default for FlatConfig {
@@ -132,6 +141,7 @@ impl Default for FlatConfig {
             levels: default_flat_levels(),
             camera_flat: None,
             degree: default_degree(),
+            residual_cell_px: default_residual_cell_px(),
         }
     }
 }
@@ -150,6 +160,11 @@ pub struct VerifyConfig {
     pub drift_levels: Vec<u32>,
     #[serde(default = "default_drift_warn")]
     pub drift_warn_percent: f64,
+    /// Verify's own dark source (default: the campaign's
+    /// `calibrate.camera.dark`). With the campaign's `"none"` verify needs
+    /// one: a verify without darks shares that omission and cannot see it.
+    #[serde(default)]
+    pub dark: Option<crate::instruments::config::DarkSource>,
 }
 
 impl Default for VerifyConfig {
@@ -159,6 +174,7 @@ impl Default for VerifyConfig {
             max_error_percent: None,
             drift_levels: default_drift_levels(),
             drift_warn_percent: default_drift_warn(),
+            dark: None,
         }
     }
 }
@@ -286,6 +302,9 @@ impl CalibrateConfig {
         if let Some(p) = &mut self.flat.camera_flat {
             fix(p);
         }
+        if let Some(crate::instruments::config::DarkSource::File(p)) = &mut self.verify.dark {
+            fix(p);
+        }
         if let Some(m) = &mut self.meter {
             m.resolve_paths(dir);
         }
@@ -333,6 +352,7 @@ impl CalibrateConfig {
         }
         levels_in_range("flat.levels", &self.flat.levels, top)?;
         count("flat.degree", self.flat.degree, 0, 8)?;
+        count("flat.residual_cell_px", self.flat.residual_cell_px, 0, 256)?;
         count("verify.patches", self.verify.patches, 2, 256)?;
         if let Some(m) = self.verify.max_error_percent {
             in_range("verify.max_error_percent", m, 0.0, 100.0)?;

@@ -56,6 +56,11 @@ pub struct LevelFit {
     /// RMS of the pixels about the fit, % (noise and unremoved PRNU).
     pub fit_rms_percent: f64,
     pub pixels: usize,
+    /// The measured screen over the polynomial, per cell of
+    /// `calibrate.flat.residual_cell_px` screen px (row-major; 1 where no
+    /// camera pixel sees the cell): the mura no low-order fit holds.
+    #[serde(default)]
+    pub residual: Vec<f32>,
 }
 
 /// The report.
@@ -466,6 +471,7 @@ fn fit_level(
             }
         }
     }
+    let residual = residual_cells(setup, map, &poly, &value, region, frame.width);
     for c in &mut poly.coefficients {
         *c /= norm;
     }
@@ -475,7 +481,95 @@ fn fit_level(
         coefficients: poly.coefficients,
         fit_rms_percent: 100.0 * (r2 / k2.max(1) as f64).sqrt(),
         pixels: count,
+        residual,
     })
+}
+
+/// The grid of residual cells over the screen: (columns, rows, side px).
+fn cell_grid(setup: &FlatSetup) -> Option<(usize, usize, usize)> {
+    let side = setup.cfg.flat.residual_cell_px;
+    (side > 0).then(|| {
+        (
+            setup.screen.0.div_ceil(side),
+            setup.screen.1.div_ceil(side),
+            side,
+        )
+    })
+}
+
+/// Mean of measured / polynomial per residual cell, normalised to mean 1
+/// over the camera pixels of `region` (so the polynomial keeps the
+/// region's scale); 1 in cells no camera pixel sees.
+fn residual_cells(
+    setup: &FlatSetup,
+    map: &PixelMap,
+    poly: &Poly,
+    value: &dyn Fn(usize) -> Option<(f64, f64, f64)>,
+    region: Rect,
+    width: usize,
+) -> Vec<f32> {
+    let Some((gw, gh, side)) = cell_grid(setup) else {
+        return Vec::new();
+    };
+    let cell_of = |u: f64, v: f64| {
+        let (i, j) = ((u / side as f64) as usize, (v / side as f64) as usize);
+        j.min(gh - 1) * gw + i.min(gw - 1)
+    };
+    let (mut sum, mut n) = (vec![0.0f64; gw * gh], vec![0u32; gw * gh]);
+    for k in 0..map.screen.len() {
+        if let Some((u, v, y)) = value(k) {
+            let f = poly.eval(u, v);
+            if f > 0.0 {
+                let c = cell_of(u, v);
+                sum[c] += y / f;
+                n[c] += 1;
+            }
+        }
+    }
+    let cells: Vec<f64> = sum
+        .iter()
+        .zip(&n)
+        .map(|(&s, &c)| if c > 0 { s / c as f64 } else { 1.0 })
+        .collect();
+    let (mut s, mut m) = (0.0, 0usize);
+    for y in region.y..region.y + region.h {
+        for x in region.x..region.x + region.w {
+            if let Some((u, v)) = map.screen[y * width + x] {
+                s += cells[cell_of(u, v)];
+                m += 1;
+            }
+        }
+    }
+    let norm = if m > 0 && s > 0.0 { s / m as f64 } else { 1.0 };
+    cells.iter().map(|&c| (c / norm) as f32).collect()
+}
+
+/// The residual cells' mean over the levels, bilinear at screen (u, v)
+/// between cell centres; 1 without cells.
+fn residual_at(setup: &FlatSetup, fits: &[LevelFit], u: f64, v: f64) -> f64 {
+    let Some((gw, gh, side)) = cell_grid(setup) else {
+        return 1.0;
+    };
+    let at = |i: usize, j: usize| {
+        let k = j * gw + i;
+        let vals: Vec<f64> = fits
+            .iter()
+            .filter_map(|f| f.residual.get(k))
+            .map(|&r| r as f64)
+            .collect();
+        if vals.is_empty() {
+            1.0
+        } else {
+            vals.iter().sum::<f64>() / vals.len() as f64
+        }
+    };
+    let x = (u / side as f64 - 0.5).clamp(0.0, (gw - 1) as f64);
+    let y = (v / side as f64 - 0.5).clamp(0.0, (gh - 1) as f64);
+    let (i0, j0) = (x.floor() as usize, y.floor() as usize);
+    let (i1, j1) = ((i0 + 1).min(gw - 1), (j0 + 1).min(gh - 1));
+    let (a, b) = (x - i0 as f64, y - j0 as f64);
+    (1.0 - b) * ((1.0 - a) * at(i0, j0) + a * at(i1, j0))
+        + b * ((1.0 - a) * at(i0, j1) + a * at(i1, j1))
 }
 
 /// The 13 measuring points of a uniformity figure, as fractions of the
@@ -516,6 +610,7 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
     let poly = Poly::new(degree, mean, setup.screen);
     let [u0, v0, u1, v1] = map.seen;
     let (w, h) = setup.screen;
+    let fits_ref = &fits;
     let gains: Vec<f32> = (0..h)
         .into_par_iter()
         .flat_map_iter(|y| {
@@ -523,7 +618,7 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
             (0..w).map(move |x| {
                 let u = (x as f64 + 0.5).clamp(u0, u1);
                 let v = (y as f64 + 0.5).clamp(v0, v1);
-                poly.eval(u, v) as f32
+                (poly.eval(u, v) * residual_at(setup, fits_ref, u, v)) as f32
             })
         })
         .collect();

@@ -151,11 +151,27 @@ fn ask(what: &str) -> optistim::Result<()> {
     Ok(())
 }
 
-/// The campaign's dark frames (`calibrate.camera.dark`).
-fn dark_bank(cfg: &CalibrateConfig, rig: &mut Rig) -> Result<DarkBank> {
+/// Where a routine's darks come from: the campaign's
+/// `calibrate.camera.dark`, or for verify its own `calibrate.verify.dark`
+/// (required when the campaign's is `"none"`).
+fn dark_source(cfg: &CalibrateConfig, routine: Routine) -> Result<Option<DarkSource>> {
+    if routine != Routine::Verify {
+        return Ok(cfg.camera.dark.clone());
+    }
+    match (&cfg.verify.dark, &cfg.camera.dark) {
+        (Some(v), _) => Ok(Some(v.clone())),
+        (None, Some(DarkSource::None)) => bail!(
+            "calibrate.verify.dark: missing while calibrate.camera.dark = \"none\": a verify without darks shares the campaign's omission; say \"shutter\", \"capture\" or a dark model file"
+        ),
+        (None, c) => Ok(c.clone()),
+    }
+}
+
+/// The routine's dark frames from `source`.
+fn dark_bank(cfg: &CalibrateConfig, source: Option<DarkSource>, rig: &mut Rig) -> Result<DarkBank> {
     let frames = cfg.camera.dark_frames;
     let operator = rig.sim.is_none();
-    Ok(match &cfg.camera.dark {
+    Ok(match &source {
         None => bail!("calibrate.camera.dark: missing; say \"shutter\", \"capture\", a dark model file, or \"none\""),
         Some(DarkSource::None) => DarkBank::none(),
         Some(DarkSource::Shutter) => DarkBank::shutter(frames),
@@ -214,7 +230,8 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
             ckpt_path.display()
         );
     }
-    let mut darks = dark_bank(&cfg, &mut rig)?;
+    let source = dark_source(&cfg, args.routine)?;
+    let mut darks = dark_bank(&cfg, source, &mut rig)?;
     let sim = rig.sim.clone();
     let mut wait = move |s: f64| match &sim {
         Some(f) => f.advance(s),
