@@ -84,6 +84,13 @@ pub struct FlatReport {
     #[serde(default)]
     pub uncertainty_k2_percent: f64,
     pub camera_flat: bool,
+    /// Side [screen px] of the residual cells kept beyond the polynomial
+    /// (the mura), and the Wiener factor they were shrunk by (0: the camera
+    /// could not tell them from its noise); None without them.
+    #[serde(default)]
+    pub residual_cell_px: Option<usize>,
+    #[serde(default)]
+    pub residual_gain: Option<f64>,
 }
 
 /// Polynomial terms s^a t^b with a + b ≤ degree.
@@ -133,6 +140,8 @@ impl Poly {
 
 /// Camera pixel → screen position, with the pixel's relative etendue.
 struct PixelMap {
+    /// Camera frame width, px.
+    width: usize,
     /// Per camera pixel: screen (u, v) if the pixel sees the screen.
     screen: Vec<Option<(f64, f64)>>,
     /// Per camera pixel: etendue relative to the mean.
@@ -220,6 +229,7 @@ fn pixel_map(setup: &FlatSetup, width: usize, height: usize) -> Result<PixelMap>
         ));
     }
     Ok(PixelMap {
+        width,
         screen,
         etendue,
         seen,
@@ -486,15 +496,38 @@ fn fit_level(
 }
 
 /// The grid of residual cells over the screen: (columns, rows, side px).
-fn cell_grid(setup: &FlatSetup) -> Option<(usize, usize, usize)> {
-    let side = setup.cfg.flat.residual_cell_px;
-    (side > 0).then(|| {
-        (
-            setup.screen.0.div_ceil(side),
-            setup.screen.1.div_ceil(side),
-            side,
-        )
-    })
+/// A cell spans at least two camera pixels each way (a cell no camera
+/// pixel falls in would hold no measurement).
+fn cell_grid(setup: &FlatSetup, map: &PixelMap) -> Option<(usize, usize, usize)> {
+    let wanted = setup.cfg.flat.residual_cell_px;
+    if wanted == 0 {
+        return None;
+    }
+    let side = wanted.max((2.0 * screen_px_per_camera_px(map)).ceil() as usize);
+    Some((
+        setup.screen.0.div_ceil(side),
+        setup.screen.1.div_ceil(side),
+        side,
+    ))
+}
+
+/// Screen pixels per camera pixel: the median step between horizontally
+/// adjacent camera pixels that both see the screen.
+fn screen_px_per_camera_px(map: &PixelMap) -> f64 {
+    let w = map.width;
+    let mut steps: Vec<f64> = (0..map.screen.len().saturating_sub(1))
+        .step_by(17)
+        .filter(|k| (k + 1) % w != 0)
+        .filter_map(|k| {
+            let (a, b) = (map.screen[k]?, map.screen[k + 1]?);
+            Some((a.0 - b.0).hypot(a.1 - b.1))
+        })
+        .collect();
+    if steps.is_empty() {
+        return 1.0;
+    }
+    steps.sort_by(f64::total_cmp);
+    steps[steps.len() / 2]
 }
 
 /// Mean of measured / polynomial per residual cell, normalised to mean 1
@@ -508,7 +541,7 @@ fn residual_cells(
     region: Rect,
     width: usize,
 ) -> Vec<f32> {
-    let Some((gw, gh, side)) = cell_grid(setup) else {
+    let Some((gw, gh, side)) = cell_grid(setup, map) else {
         return Vec::new();
     };
     let cell_of = |u: f64, v: f64| {
@@ -544,32 +577,73 @@ fn residual_cells(
     cells.iter().map(|&c| (c / norm) as f32).collect()
 }
 
-/// The residual cells' mean over the levels, bilinear at screen (u, v)
-/// between cell centres; 1 without cells.
-fn residual_at(setup: &FlatSetup, fits: &[LevelFit], u: f64, v: f64) -> f64 {
-    let Some((gw, gh, side)) = cell_grid(setup) else {
-        return 1.0;
-    };
-    let at = |i: usize, j: usize| {
-        let k = j * gw + i;
-        let vals: Vec<f64> = fits
-            .iter()
-            .filter_map(|f| f.residual.get(k))
-            .map(|&r| r as f64)
-            .collect();
-        if vals.is_empty() {
-            1.0
-        } else {
-            vals.iter().sum::<f64>() / vals.len() as f64
+/// The residual cells kept: their mean over the levels, shrunk toward 1 by
+/// the Wiener factor 1 − noise / total variance, the noise estimated from
+/// the levels' differences (the mura is common to the levels, the
+/// camera's noise is not), so that a camera too coarse or too noisy to
+/// see the mura adds no noise to the flat.
+struct Residual {
+    grid: (usize, usize, usize),
+    cells: Vec<f64>,
+    /// The Wiener factor applied.
+    gain: f64,
+}
+
+impl Residual {
+    fn new(grid: Option<(usize, usize, usize)>, fits: &[LevelFit]) -> Option<Residual> {
+        let (gw, gh, side) = grid?;
+        let n = gw * gh;
+        if fits.is_empty() || fits.iter().any(|f| f.residual.len() != n) {
+            return None;
         }
-    };
-    let x = (u / side as f64 - 0.5).clamp(0.0, (gw - 1) as f64);
-    let y = (v / side as f64 - 0.5).clamp(0.0, (gh - 1) as f64);
-    let (i0, j0) = (x.floor() as usize, y.floor() as usize);
-    let (i1, j1) = ((i0 + 1).min(gw - 1), (j0 + 1).min(gh - 1));
-    let (a, b) = (x - i0 as f64, y - j0 as f64);
-    (1.0 - b) * ((1.0 - a) * at(i0, j0) + a * at(i1, j0))
-        + b * ((1.0 - a) * at(i0, j1) + a * at(i1, j1))
+        let m = fits.len() as f64;
+        let mean: Vec<f64> = (0..n)
+            .map(|k| fits.iter().map(|f| f.residual[k] as f64).sum::<f64>() / m)
+            .collect();
+        // Cells with data differ from 1; the exact 1s are cells no pixel saw.
+        let seen: Vec<usize> = (0..n).filter(|&k| mean[k] != 1.0).collect();
+        let total =
+            seen.iter().map(|&k| (mean[k] - 1.0).powi(2)).sum::<f64>() / seen.len().max(1) as f64;
+        // Variance of the mean's noise: the levels' scatter about it / m.
+        let noise = if fits.len() >= 2 {
+            seen.iter()
+                .map(|&k| {
+                    fits.iter()
+                        .map(|f| (f.residual[k] as f64 - mean[k]).powi(2))
+                        .sum::<f64>()
+                        / (m - 1.0)
+                        / m
+                })
+                .sum::<f64>()
+                / seen.len().max(1) as f64
+        } else {
+            total
+        };
+        let gain = if total > 0.0 {
+            (1.0 - noise / total).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let cells = mean.iter().map(|&r| 1.0 + gain * (r - 1.0)).collect();
+        Some(Residual {
+            grid: (gw, gh, side),
+            cells,
+            gain,
+        })
+    }
+
+    /// Bilinear between cell centres at screen (u, v).
+    fn at(&self, u: f64, v: f64) -> f64 {
+        let (gw, gh, side) = self.grid;
+        let c = |i: usize, j: usize| self.cells[j * gw + i];
+        let x = (u / side as f64 - 0.5).clamp(0.0, (gw - 1) as f64);
+        let y = (v / side as f64 - 0.5).clamp(0.0, (gh - 1) as f64);
+        let (i0, j0) = (x.floor() as usize, y.floor() as usize);
+        let (i1, j1) = ((i0 + 1).min(gw - 1), (j0 + 1).min(gh - 1));
+        let (a, b) = (x - i0 as f64, y - j0 as f64);
+        (1.0 - b) * ((1.0 - a) * c(i0, j0) + a * c(i1, j0))
+            + b * ((1.0 - a) * c(i0, j1) + a * c(i1, j1))
+    }
 }
 
 /// The 13 measuring points of a uniformity figure, as fractions of the
@@ -610,7 +684,8 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
     let poly = Poly::new(degree, mean, setup.screen);
     let [u0, v0, u1, v1] = map.seen;
     let (w, h) = setup.screen;
-    let fits_ref = &fits;
+    let residual = Residual::new(cell_grid(setup, map), &fits);
+    let residual = residual.as_ref();
     let gains: Vec<f32> = (0..h)
         .into_par_iter()
         .flat_map_iter(|y| {
@@ -618,7 +693,7 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
             (0..w).map(move |x| {
                 let u = (x as f64 + 0.5).clamp(u0, u1);
                 let v = (y as f64 + 0.5).clamp(v0, v1);
-                (poly.eval(u, v) * residual_at(setup, fits_ref, u, v)) as f32
+                (poly.eval(u, v) * residual.map_or(1.0, |r| r.at(u, v))) as f32
             })
         })
         .collect();
@@ -671,6 +746,8 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
             nonuniformity_13_percent: 100.0 * (1.0 - pmin / pmax),
             level_disagreement_percent: disagree,
             camera_flat: setup.camera_flat.is_some(),
+            residual_cell_px: residual.map(|r| r.grid.2),
+            residual_gain: residual.map(|r| r.gain),
         },
     ))
 }
