@@ -14,7 +14,7 @@ use optistim::calibration::dark::DarkBank;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
 use optistim::calibration::responsivity::CameraResponsivity;
 use optistim::calibration::{
-    flat, geometric, radiometric, sleep, verify, AutoExposure, Instruments,
+    flat, focal, geometric, radiometric, sleep, verify, AutoExposure, Instruments,
 };
 use optistim::facility::config::FacilityConfig;
 use optistim::facility::display::{Display, WindowDisplay, WindowOptions};
@@ -195,7 +195,7 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
     let fp = fingerprint(&table, name, fac.screen_size(), bits);
     let mut rig = open_rig(args, &fac, &cfg)?;
     if args.routine == Routine::Geometric {
-        return run_geometric(&cfg, &args.facility, &mut rig);
+        return run_geometric(&fac, &cfg, &args.facility, &mut rig);
     }
     let ckpt_path = cfg.out_dir.join(format!("{name}.checkpoint.jsonl"));
     let mut ckpt = Checkpoint::open(&ckpt_path, &fp, name, args.resume)?;
@@ -431,7 +431,12 @@ fn run_verify(
     Ok(())
 }
 
-fn run_geometric(cfg: &CalibrateConfig, facility: &Path, rig: &mut Rig) -> Result<()> {
+fn run_geometric(
+    fac: &FacilityConfig,
+    cfg: &CalibrateConfig,
+    facility: &Path,
+    rig: &mut Rig,
+) -> Result<()> {
     let table = cfg.geometric.clone().context(
         "calibrate.geometric: missing; the geometric routine needs its table (docs/GEOMETRIC.md)",
     )?;
@@ -460,5 +465,36 @@ fn run_geometric(cfg: &CalibrateConfig, facility: &Path, rig: &mut Rig) -> Resul
         report.max_arcsec,
         report.report_json.display()
     );
+    let geometry = GeometryCalibration::load(&report.geometry_csv, fac.screen_size())?;
+    let c = focal::check(
+        &geometry,
+        fac.screen.pixel_pitch,
+        fac.collimator.focal_length,
+        cfg.collimator_focal_length_uncertainty_percent,
+    )?;
+    let json = cfg.out_dir.join("collimator_focal_length.json");
+    std::fs::write(&json, serde_json::to_string_pretty(&c)?)
+        .with_context(|| format!("writing {}", json.display()))?;
+    println!(
+        "collimator focal length implied near the axis ({:.1}, {:.1}) px: {:.5} m (u), {:.5} m (v) against the configured {} m: {:+.3} % ({}); {}",
+        c.axis_px[0],
+        c.axis_px[1],
+        c.implied_m[0],
+        c.implied_m[1],
+        c.configured_m,
+        c.disagreement_percent,
+        match c.uncertainty_percent {
+            Some(u) => format!("declared uncertainty {u} %"),
+            None => "no calibrate.collimator_focal_length_uncertainty_percent: not checked".into(),
+        },
+        json.display()
+    );
+    if c.flagged {
+        tracing::warn!(
+            "the geometry implies a collimator focal length {:+.3} % from the configured one, beyond its declared {} %: check the camera intrinsics' focal length and collimator.focal_length",
+            c.disagreement_percent,
+            c.uncertainty_percent.unwrap_or(0.0)
+        );
+    }
     Ok(())
 }
