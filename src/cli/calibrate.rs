@@ -330,14 +330,17 @@ fn run_flat(
         cfg.out_dir.join("flat_field.png"),
     );
     flat::write_report(&report, &gains, screen, &json, &png)?;
+    let utif = cfg.out_dir.join("flat_field_uncertainty.tif");
+    flat::write_tiff(&utif, &flat::uncertainty_map(&report, screen), screen)?;
     println!(
-        "flat field {} (gain {:.4}..{:.4} over the area seen, 13-point non-uniformity {:.2} %, levels agree within {:.3} %, uncertainty {:.3} % (k = 2)); report {}, map {}; set `calibration.flat_field` to use it",
+        "flat field {} (gain {:.4}..{:.4} over the area seen, 13-point non-uniformity {:.2} %, levels agree within {:.3} %, uncertainty {:.3} % (k = 2), per pixel in {}); report {}, map {}; set `calibration.flat_field` to use it",
         tif.display(),
         report.min_gain,
         report.max_gain,
         report.nonuniformity_13_percent,
         report.level_disagreement_percent,
         report.uncertainty_k2_percent,
+        utif.display(),
         json.display(),
         png.display()
     );
