@@ -622,7 +622,10 @@ fn verify_passes_a_good_lut_and_fails_a_wrong_one() {
     let lut = DisplayLut::load(dir.path().join("lut.csv"), 8).unwrap();
     let good = run_verify(&state, &cfg, lut.clone(), &report, &dir.path().join("good"));
     assert!(good.passed, "{}", verify::summary(&good));
-    assert!(good.max_error_percent < 1.0, "{}", verify::summary(&good));
+    println!("{}", verify::summary(&good));
+    // Noise-free: the spots read the fake screen through K exactly; what
+    // is left is the LUT's interpolation between its 17 levels.
+    assert!(good.max_error_percent < 0.1, "{}", verify::summary(&good));
     let png = dir.path().join("verify.png");
     verify::plot(&good, &png).unwrap();
     assert!(std::fs::metadata(&png).unwrap().len() > 10_000);

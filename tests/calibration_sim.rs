@@ -308,6 +308,14 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
     // The declared uncertainty covers the shape error (a spread hi/lo of
     // the ratio is at most twice the error of either end).
     assert!(100.0 * (hi / lo - 1.0) <= 2.0 * report.uncertainty_k2_percent);
+    // The per-pixel map: between the fit term alone and the area's total
+    // (the mean of two levels is half-way, so its spread is half the
+    // levels' disagreement).
+    let umap = flat::uncertainty_map(&report, (1920, 1080));
+    let fit_only = umap.iter().copied().fold(f32::INFINITY, f32::min) as f64;
+    let worst = umap.iter().copied().fold(0.0f32, f32::max) as f64;
+    println!("flat uncertainty map: {fit_only:.4} … {worst:.4} %");
+    assert!(fit_only > 0.0 && worst <= report.uncertainty_k2_percent + 1e-6);
     assert!(
         hi / lo - 1.0 < 0.003,
         "gain/truth spread {:.3} %",

@@ -93,6 +93,11 @@ pub struct CalibrateConfig {
     pub mismatch_factor: Option<f64>,
     #[serde(default)]
     pub screen_spectrum: Option<PathBuf>,
+    /// Declared uncertainty of the collimator's focal length, %: the
+    /// geometric routine flags a larger disagreement with the focal
+    /// length its fit implies.
+    #[serde(default)]
+    pub collimator_focal_length_uncertainty_percent: Option<f64>,
     /// Declared uncertainty of the screen spectrum's wavelength scale, nm
     /// (the budget evaluates F with the spectrum shifted by it).
     #[serde(default)]
@@ -356,6 +361,9 @@ impl CalibrateConfig {
         count("verify.patches", self.verify.patches, 2, 256)?;
         if let Some(m) = self.verify.max_error_percent {
             in_range("verify.max_error_percent", m, 0.0, 100.0)?;
+        }
+        if let Some(u) = self.collimator_focal_length_uncertainty_percent {
+            in_range("collimator_focal_length_uncertainty_percent", u, 0.0, 100.0)?;
         }
         if let Some(u) = self.screen_spectrum_uncertainty_nm {
             in_range("screen_spectrum_uncertainty_nm", u, 0.0, 50.0)?;

@@ -752,6 +752,36 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
     ))
 }
 
+/// The per-pixel expanded uncertainty (k = 2, %) of the gain map: at each
+/// screen pixel (clamped to the seen area, as the gains are) the largest
+/// disagreement of a level's fit with the mean, and the fit's standard
+/// error term of [`FlatReport::uncertainty_k2_percent`], in quadrature.
+pub fn uncertainty_map(report: &FlatReport, screen: (usize, usize)) -> Vec<f32> {
+    let degree = report.degree;
+    let polys: Vec<Poly> = report
+        .levels
+        .iter()
+        .map(|f| Poly::new(degree, f.coefficients.clone(), screen))
+        .collect();
+    let fit = flat_uncertainty(&report.levels, degree, 0.0);
+    let [u0, v0, u1, v1] = report.seen;
+    let (w, h) = screen;
+    (0..w * h)
+        .into_par_iter()
+        .map(|k| {
+            let u = ((k % w) as f64 + 0.5).clamp(u0, u1);
+            let v = ((k / w) as f64 + 0.5).clamp(v0, v1);
+            let g: Vec<f64> = polys.iter().map(|p| p.eval(u, v)).collect();
+            let mean = g.iter().sum::<f64>() / g.len().max(1) as f64;
+            let spread = g
+                .iter()
+                .map(|x| (x / mean - 1.0).abs() * 100.0)
+                .fold(0.0f64, f64::max);
+            spread.hypot(fit) as f32
+        })
+        .collect()
+}
+
 /// The flat field's expanded uncertainty (k = 2), % (see
 /// [`FlatReport::uncertainty_k2_percent`]).
 fn flat_uncertainty(fits: &[LevelFit], degree: usize, disagreement_percent: f64) -> f64 {

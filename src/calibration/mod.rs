@@ -16,6 +16,7 @@
 //! | [`mismatch`] | camera-effective radiance and the spectral mismatch factor F |
 //! | [`radiometric`] | drive level → camera-effective radiance: the LUT CSV, report and plot |
 //! | [`geometric`] | dot patterns → the geometry CSV (screen pixel → camera direction) |
+//! | [`focal`] | the collimator focal length the geometry implies near the axis |
 //! | [`flat`] | the per-pixel flat-field gain TIFF and its uniformity |
 //! | [`responsivity`] | the camera's absolute responsivity file (verify's independent scale) |
 //! | [`verify`] | target radiances through the real conversion path, achieved/target, drift |
@@ -27,6 +28,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod dark;
 pub mod flat;
+pub mod focal;
 pub mod geometric;
 pub mod mismatch;
 pub mod radiometric;

@@ -14,7 +14,7 @@ use optistim::calibration::dark::DarkBank;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
 use optistim::calibration::responsivity::CameraResponsivity;
 use optistim::calibration::{
-    flat, geometric, radiometric, sleep, verify, AutoExposure, Instruments,
+    flat, focal, geometric, radiometric, sleep, verify, AutoExposure, Instruments,
 };
 use optistim::facility::config::FacilityConfig;
 use optistim::facility::display::{Display, WindowDisplay, WindowOptions};
@@ -219,7 +219,7 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
     };
     _clock.as_ref().map(|c| c.save_on_interrupt()).transpose()?;
     if args.routine == Routine::Geometric {
-        return run_geometric(&cfg, &args.facility, &mut rig);
+        return run_geometric(&fac, &cfg, &args.facility, &mut rig);
     }
     let ckpt_path = cfg.out_dir.join(format!("{name}.checkpoint.jsonl"));
     let mut ckpt = Checkpoint::open(&ckpt_path, &fp, name, args.resume)?;
@@ -355,14 +355,17 @@ fn run_flat(
         cfg.out_dir.join("flat_field.png"),
     );
     flat::write_report(&report, &gains, screen, &json, &png)?;
+    let utif = cfg.out_dir.join("flat_field_uncertainty.tif");
+    flat::write_tiff(&utif, &flat::uncertainty_map(&report, screen), screen)?;
     println!(
-        "flat field {} (gain {:.4}..{:.4} over the area seen, 13-point non-uniformity {:.2} %, levels agree within {:.3} %, uncertainty {:.3} % (k = 2)); report {}, map {}; set `calibration.flat_field` to use it",
+        "flat field {} (gain {:.4}..{:.4} over the area seen, 13-point non-uniformity {:.2} %, levels agree within {:.3} %, uncertainty {:.3} % (k = 2), per pixel in {}); report {}, map {}; set `calibration.flat_field` to use it",
         tif.display(),
         report.min_gain,
         report.max_gain,
         report.nonuniformity_13_percent,
         report.level_disagreement_percent,
         report.uncertainty_k2_percent,
+        utif.display(),
         json.display(),
         png.display()
     );
@@ -456,7 +459,12 @@ fn run_verify(
     Ok(())
 }
 
-fn run_geometric(cfg: &CalibrateConfig, facility: &Path, rig: &mut Rig) -> Result<()> {
+fn run_geometric(
+    fac: &FacilityConfig,
+    cfg: &CalibrateConfig,
+    facility: &Path,
+    rig: &mut Rig,
+) -> Result<()> {
     let table = cfg.geometric.clone().context(
         "calibrate.geometric: missing; the geometric routine needs its table (docs/GEOMETRIC.md)",
     )?;
@@ -485,5 +493,36 @@ fn run_geometric(cfg: &CalibrateConfig, facility: &Path, rig: &mut Rig) -> Resul
         report.max_arcsec,
         report.report_json.display()
     );
+    let geometry = GeometryCalibration::load(&report.geometry_csv, fac.screen_size())?;
+    let c = focal::check(
+        &geometry,
+        fac.screen.pixel_pitch,
+        fac.collimator.focal_length,
+        cfg.collimator_focal_length_uncertainty_percent,
+    )?;
+    let json = cfg.out_dir.join("collimator_focal_length.json");
+    std::fs::write(&json, serde_json::to_string_pretty(&c)?)
+        .with_context(|| format!("writing {}", json.display()))?;
+    println!(
+        "collimator focal length implied near the axis ({:.1}, {:.1}) px: {:.5} m (u), {:.5} m (v) against the configured {} m: {:+.3} % ({}); {}",
+        c.axis_px[0],
+        c.axis_px[1],
+        c.implied_m[0],
+        c.implied_m[1],
+        c.configured_m,
+        c.disagreement_percent,
+        match c.uncertainty_percent {
+            Some(u) => format!("declared uncertainty {u} %"),
+            None => "no calibrate.collimator_focal_length_uncertainty_percent: not checked".into(),
+        },
+        json.display()
+    );
+    if c.flagged {
+        tracing::warn!(
+            "the geometry implies a collimator focal length {:+.3} % from the configured one, beyond its declared {} %: check the camera intrinsics' focal length and collimator.focal_length",
+            c.disagreement_percent,
+            c.uncertainty_percent.unwrap_or(0.0)
+        );
+    }
     Ok(())
 }
