@@ -618,7 +618,28 @@ fn sensitivity_of_the_stimulus_to_input_errors() {
         last(&ok),
         r.failures
     );
-    assert!(r.failures > 0 && ok.failures == 0);
+    // With darks the camera's spots all pass. The broadband meter's one F
+    // (from the white spectrum) misses the panel's bluer black leak: it
+    // reads up to ~3 % high at the darkest patches, and verify says so
+    // (docs/CALIBRATION.md); the camera, reading through its own
+    // responsivity, does not share that error.
+    let camera_failures = |v: &VerifyReport| {
+        v.patches
+            .iter()
+            .flat_map(|p| {
+                p.spots
+                    .iter()
+                    .map(move |s| s.error_percent.abs() > p.camera_threshold_percent)
+            })
+            .filter(|&beyond| beyond)
+            .count()
+    };
+    println!(
+        "with darks: {} camera spots and {} meter readings beyond threshold",
+        camera_failures(&ok),
+        ok.failures - camera_failures(&ok)
+    );
+    assert!(r.failures > 0 && camera_failures(&ok) == 0);
 
     // Intrinsics: focal length +0.25 %, principal point +0.5 px.
     let (_, g0, rep0) = sim_flat(1.0, 0.0);

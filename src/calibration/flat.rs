@@ -733,23 +733,30 @@ fn build(setup: &FlatSetup, map: &PixelMap, fits: Vec<LevelFit>) -> Result<(Vec<
         .collect();
     let pmin = points_13.iter().map(|p| p.2).fold(f64::INFINITY, f64::min);
     let pmax = points_13.iter().map(|p| p.2).fold(0.0, f64::max);
-    Ok((
-        gains,
-        FlatReport {
-            uncertainty_k2_percent: flat_uncertainty(&fits, degree, disagree),
-            levels: fits,
-            degree,
-            seen: map.seen,
-            min_gain: lo,
-            max_gain: hi,
-            points_13,
-            nonuniformity_13_percent: 100.0 * (1.0 - pmin / pmax),
-            level_disagreement_percent: disagree,
-            camera_flat: setup.camera_flat.is_some(),
-            residual_cell_px: residual.map(|r| r.grid.2),
-            residual_gain: residual.map(|r| r.gain),
-        },
-    ))
+    let report = FlatReport {
+        uncertainty_k2_percent: flat_uncertainty(&fits, degree, disagree),
+        levels: fits,
+        degree,
+        seen: map.seen,
+        min_gain: lo,
+        max_gain: hi,
+        points_13,
+        nonuniformity_13_percent: 100.0 * (1.0 - pmin / pmax),
+        level_disagreement_percent: disagree,
+        camera_flat: setup.camera_flat.is_some(),
+        residual_cell_px: residual.map(|r| r.grid.2),
+        residual_gain: residual.map(|r| r.gain),
+    };
+    // The area's figure is the per-pixel map's largest value (the grid
+    // above can miss the map's peak between its points).
+    let worst = uncertainty_map(&report, setup.screen)
+        .iter()
+        .fold(0.0f64, |m, &u| m.max(u as f64));
+    let report = FlatReport {
+        uncertainty_k2_percent: report.uncertainty_k2_percent.max(worst),
+        ..report
+    };
+    Ok((gains, report))
 }
 
 /// The per-pixel expanded uncertainty (k = 2, %) of the gain map: at each
