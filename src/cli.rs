@@ -18,6 +18,7 @@ use optistim::facility::driver::{self, RunPlan, StateSource};
 use optistim::facility::serial::{SerialOptions, SerialPortSync, SimSync, SyncPort};
 use optistim::facility::trajectory::Trajectory;
 use optistim::render::detector::{render_scene, PixelGeometry};
+use optistim::render::field::field_check;
 use optistim::render::{output, Renderer};
 use optistim::scene::Scene;
 
@@ -29,6 +30,14 @@ pub fn render(scene_path: &Path, out: &Path, caps_per_pixel: Option<f64>) -> Res
     if let Some(d) = caps_per_pixel {
         scene.render.caps_per_pixel = Some(d);
         scene.render.check()?;
+    }
+    let field = field_check(&scene.camera.pinhole, &scene.state, scene.body.radius);
+    if !field.in_field && !scene.render.allow_empty {
+        anyhow::bail!(
+            "{}: nothing to render: {} (set [render] allow_empty = true to write the empty image)",
+            scene_path.display(),
+            field.describe()
+        );
     }
     let mut renderer = Renderer::new(scene.camera.pinhole.clone());
     let pixels = PixelGeometry::new(&renderer);

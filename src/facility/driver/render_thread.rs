@@ -36,6 +36,8 @@ pub(super) struct Job {
     pub safe: bool,
     /// The render's error against LIME (a `lime_reference` body).
     pub render_over_lime: Option<f64>,
+    /// The state put the body entirely out of the field: why.
+    pub out_of_field: Option<String>,
 }
 
 /// Shared by the two threads for late latching: the next free slot with
@@ -204,6 +206,10 @@ impl RenderThread {
             let entry = drawn.clear(&mut buffer, self.model.screen.0, black);
             self.converter.forget_previous_roi();
             let shown = state.as_ref().map(|s| scene_state(s, &self.scene.state));
+            let out_of_field = shown
+                .map(|st| self.model.field_check(&self.scene, &st))
+                .filter(|c| !c.in_field)
+                .map(|c| c.describe());
             let roi = shown.and_then(|st| self.model.render(&self.scene, &st));
             let render_end = Instant::now();
             let render_over_lime = shown.and_then(|st| self.model.render_over_lime(&st));
@@ -232,6 +238,7 @@ impl RenderThread {
                 stats,
                 safe: state.is_none(),
                 render_over_lime,
+                out_of_field,
             };
             if self.ready.send(job).is_err() {
                 break;
