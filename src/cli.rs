@@ -19,17 +19,44 @@ use optistim::facility::driver::{self, RunPlan, StateSource};
 use optistim::facility::serial::{SerialOptions, SerialPortSync, SimSync, SyncPort};
 use optistim::facility::trajectory::Trajectory;
 use optistim::render::detector::{render_scene, PixelGeometry};
+use optistim::render::field::field_check;
 use optistim::render::{output, Renderer};
 use optistim::scene::Scene;
 
 pub use bench::{bench, BenchSweep};
 
-/// `optistim render`.
-pub fn render(scene_path: &Path, out: &Path, caps_per_pixel: Option<f64>) -> Result<()> {
+/// What `optistim render` writes into its `--out` directory.
+const RENDER_FILES: [&str; 6] = [
+    "radiance.tiff",
+    "radiance_effective.tiff",
+    "electrons.tiff",
+    "dn.png",
+    "preview.png",
+    "summary.json",
+];
+
+/// `optistim render`; refuses an `out` holding an earlier render unless
+/// `overwrite`.
+pub fn render(
+    scene_path: &Path,
+    out: &Path,
+    caps_per_pixel: Option<f64>,
+    overwrite: bool,
+) -> Result<()> {
+    let files: Vec<_> = RENDER_FILES.iter().map(|f| out.join(f)).collect();
+    optistim::outfile::check_no_earlier(&files, overwrite)?;
     let mut scene = Scene::from_file(scene_path)?;
     if let Some(d) = caps_per_pixel {
         scene.render.caps_per_pixel = Some(d);
         scene.render.check()?;
+    }
+    let field = field_check(&scene.camera.pinhole, &scene.state, scene.body.radius);
+    if !field.in_field && !scene.render.allow_empty {
+        anyhow::bail!(
+            "{}: nothing to render: {} (set [render] allow_empty = true to write the empty image)",
+            scene_path.display(),
+            field.describe()
+        );
     }
     let mut renderer = Renderer::new(scene.camera.pinhole.clone());
     let pixels = PixelGeometry::new(&renderer);
@@ -151,12 +178,24 @@ pub struct RunArgs {
     /// Stop after N frames (N ≥ 1).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub frames: Option<u64>,
-    /// Frame log (JSON lines, appended).
-    #[arg(long, default_value = "out/frames.jsonl")]
-    pub log: std::path::PathBuf,
-    /// Run summary (JSON).
-    #[arg(long, default_value = "out/run_summary.json")]
-    pub summary: std::path::PathBuf,
+    /// Frame log (JSON lines). Default: frames.jsonl in a new directory
+    /// under `--runs-dir`. An existing log is refused unless `--append`.
+    #[arg(long)]
+    pub log: Option<std::path::PathBuf>,
+    /// Run summary (JSON). Default: run_summary.json in the run's new
+    /// directory. An existing summary is refused unless `--overwrite`.
+    #[arg(long)]
+    pub summary: Option<std::path::PathBuf>,
+    /// Where each run without `--log`/`--summary` gets its own directory,
+    /// named by its UTC start (`20261126T183155Z`, `-2` … if taken).
+    #[arg(long, default_value = "out/runs")]
+    pub runs_dir: std::path::PathBuf,
+    /// Add this run to an existing `--log` (runs are told apart by their id).
+    #[arg(long)]
+    pub append: bool,
+    /// Replace an existing `--summary`.
+    #[arg(long)]
+    pub overwrite: bool,
     /// Write the last frames shown on the simulated display as PNG here.
     #[arg(long)]
     pub dump: Option<std::path::PathBuf>,
@@ -196,14 +235,7 @@ pub fn run(args: &RunArgs) -> Result<std::process::ExitCode> {
     let config = args.calibration.load_facility(&args.facility)?;
     let scene = Scene::from_file(&config.scenario.scene)?;
     let source = state_source(args, &config)?;
-    for p in [&args.log, &args.summary] {
-        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        }
-    }
-    // Refused now, not after a campaign's last frame.
-    optistim::outfile::check_appendable(&args.log)?;
-    optistim::outfile::check_replaceable(&args.summary)?;
+    let (log, summary_path) = run_outputs(args)?;
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = stop.clone();
@@ -216,8 +248,8 @@ pub fn run(args: &RunArgs) -> Result<std::process::ExitCode> {
         scene,
         source,
         frames: args.frames,
-        log: args.log.clone(),
-        summary: args.summary.clone(),
+        log: log.clone(),
+        summary: summary_path.clone(),
     };
     let summary = run_on_display(args, plan, sync.as_mut(), stop)?;
     let lat = &summary.latency_state_to_present;
@@ -253,8 +285,8 @@ pub fn run(args: &RunArgs) -> Result<std::process::ExitCode> {
     }
     println!(
         "log: {}  summary: {}",
-        args.log.display(),
-        args.summary.display()
+        log.display(),
+        summary_path.display()
     );
     print_verdict(&summary);
     Ok(std::process::ExitCode::from(match summary.verdict {
@@ -286,6 +318,91 @@ fn print_verdict(summary: &optistim::facility::log::Summary) {
     for h in &summary.hints {
         println!("  hint: {h}");
     }
+}
+
+/// The run's frame log and summary: as given, each refused now (not after
+/// a campaign's last frame) if it would extend or replace an earlier
+/// result without `--append` / `--overwrite`; those not given go into a
+/// new directory of their own under `--runs-dir`.
+fn run_outputs(args: &RunArgs) -> Result<(std::path::PathBuf, std::path::PathBuf)> {
+    use optistim::outfile;
+    if let Some(log) = &args.log {
+        outfile::check_appendable(log)?;
+        let used = std::fs::metadata(log).is_ok_and(|m| m.len() > 0);
+        if used && !args.append {
+            anyhow::bail!(
+                "{}: holds earlier runs: refusing to add this one without --append",
+                log.display()
+            );
+        }
+    }
+    if let Some(summary) = &args.summary {
+        outfile::check_replaceable(summary)?;
+        outfile::check_no_earlier(std::slice::from_ref(summary), args.overwrite)?;
+    }
+    let run_dir = match (&args.log, &args.summary) {
+        (Some(_), Some(_)) => None,
+        _ => Some(new_run_dir(&args.runs_dir)?),
+    };
+    let in_run_dir = |name: &str| run_dir.as_ref().map(|d| d.join(name));
+    let log = args.log.clone().or_else(|| in_run_dir("frames.jsonl"));
+    let summary = args
+        .summary
+        .clone()
+        .or_else(|| in_run_dir("run_summary.json"));
+    let (log, summary) = (log.expect("log"), summary.expect("summary"));
+    for p in [&log, &summary] {
+        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+    }
+    Ok((log, summary))
+}
+
+/// A new directory under `runs`, named by the UTC time (a suffix `-2`,
+/// `-3` … when two runs start in the same second); created atomically, so
+/// two runs never share one.
+fn new_run_dir(runs: &Path) -> Result<std::path::PathBuf> {
+    std::fs::create_dir_all(runs).with_context(|| format!("creating {}", runs.display()))?;
+    let stamp = utc_stamp(std::time::SystemTime::now());
+    for n in 1..1000 {
+        let name = if n == 1 {
+            stamp.clone()
+        } else {
+            format!("{stamp}-{n}")
+        };
+        let dir = runs.join(name);
+        match std::fs::create_dir(&dir) {
+            Ok(()) => return Ok(dir),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e).with_context(|| format!("creating {}", dir.display())),
+        }
+    }
+    anyhow::bail!("{}: no free run directory for {stamp}", runs.display())
+}
+
+/// `YYYYMMDDTHHMMSSZ` of `t` (civil date from days since 1970, Howard
+/// Hinnant's algorithm).
+fn utc_stamp(t: std::time::SystemTime) -> String {
+    let secs = t
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let (days, rem) = ((secs / 86_400) as i64, secs % 86_400);
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}Z",
+        rem / 3600,
+        rem / 60 % 60,
+        rem % 60
+    )
 }
 
 /// Where states come from: `--listen`, else `--trajectory`, else the

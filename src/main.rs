@@ -32,6 +32,9 @@ enum Command {
         /// Override the caps per pixel of the scene file.
         #[arg(long)]
         caps_per_pixel: Option<f64>,
+        /// Replace an earlier render in `--out`.
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Time the renderer against its converged reference (speed vs error).
     Bench {
@@ -87,6 +90,9 @@ enum Command {
         /// geometry (JSON) into DIR, for tools/mitsuba_moon.py.
         #[arg(long, value_name = "DIR")]
         images: Option<PathBuf>,
+        /// Replace an earlier `--json` or `--plot` figure.
+        #[arg(long)]
+        overwrite: bool,
     },
     /// Calibrate the facility's screen: `radiometric` (display LUT),
     /// `flat` (flat field), `geometric` (geometry file), `verify`
@@ -148,7 +154,8 @@ fn main() -> ExitCode {
             scene,
             out,
             caps_per_pixel,
-        } => cli::render(&scene, &out, caps_per_pixel),
+            overwrite,
+        } => cli::render(&scene, &out, caps_per_pixel, overwrite),
         Command::Bench {
             scene,
             phases,
@@ -164,6 +171,7 @@ fn main() -> ExitCode {
             json,
             plot,
             images,
+            overwrite,
         } => cli::bench(
             &scene,
             &cli::BenchSweep {
@@ -181,6 +189,7 @@ fn main() -> ExitCode {
             json.as_deref(),
             plot.as_deref(),
             images.as_deref(),
+            overwrite,
         ),
         Command::Validate(ValidateCommand::Amie {
             img,

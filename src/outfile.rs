@@ -3,7 +3,8 @@
 //! path is absent or a regular file, so a symlink, a device node such as
 //! `/dev/null` or a directory at that path is refused with a message
 //! instead of being replaced (as root a rename over `/dev/null` makes it a
-//! regular file).
+//! regular file). An earlier result is replaced only when the command was
+//! told so ([`check_no_earlier`], `--overwrite`).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -53,6 +54,22 @@ pub fn check_appendable(path: &Path) -> Result<()> {
                 "refusing to write to it: it is {}",
                 unsafe_kind(&meta).unwrap_or("not a regular file")
             ),
+        )),
+    }
+}
+
+/// Ok when `overwrite` is set or none of `paths` exists; else an error
+/// naming the first earlier result found, so a command refuses before it
+/// does its work.
+pub fn check_no_earlier(paths: &[PathBuf], overwrite: bool) -> Result<()> {
+    if overwrite {
+        return Ok(());
+    }
+    match paths.iter().find(|p| std::fs::symlink_metadata(p).is_ok()) {
+        None => Ok(()),
+        Some(p) => Err(Error::invalid(
+            p.display().to_string(),
+            "exists (an earlier result): refusing to replace it without --overwrite",
         )),
     }
 }
@@ -113,6 +130,21 @@ mod tests {
         assert!(!std::fs::metadata("/dev/null").unwrap().is_file());
         let leftovers = std::fs::read_dir(dir.path()).unwrap().count();
         assert_eq!(leftovers, 2, "no temporary file left behind");
+    }
+
+    #[test]
+    fn earlier_results_are_refused_unless_overwriting() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.png"), dir.path().join("b.json"));
+        let both = [a.clone(), b.clone()];
+        check_no_earlier(&both, false).unwrap();
+        std::fs::write(&b, "old").unwrap();
+        let e = check_no_earlier(&both, false).unwrap_err().to_string();
+        assert!(
+            e.contains("b.json") && e.contains("--overwrite") && !e.contains('\n'),
+            "{e}"
+        );
+        check_no_earlier(&both, true).unwrap();
     }
 
     #[test]

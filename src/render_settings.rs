@@ -59,6 +59,10 @@ pub struct RenderSettings {
     /// pixels near the limb reach it; default
     /// [`DEFAULT_PIXEL_TOLERANCE`].
     pub pixel_tolerance: f64,
+    /// `optistim render` writes an empty image when the body is entirely
+    /// out of the field ([`crate::render::field`]) instead of stopping with
+    /// an error.
+    pub allow_empty: bool,
 }
 
 /// How the pixels inside the lit disk are integrated.
@@ -92,6 +96,7 @@ impl Default for RenderSettings {
             interior: Interior::Pixels,
             node_spacing: DEFAULT_NODE_SPACING,
             pixel_tolerance: DEFAULT_PIXEL_TOLERANCE,
+            allow_empty: false,
         }
     }
 }

@@ -118,6 +118,43 @@ fn timing_figure_of_a_log_with_a_torn_line() {
     assert!(close(t.latency_ms.p99, rank(99.0)), "{:?}", t.latency_ms);
 }
 
+/// Without `--out` the figure goes next to the log; a second plot refuses
+/// to replace it unless `--overwrite`.
+#[test]
+fn plot_log_writes_next_to_the_log_and_keeps_an_earlier_figure() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("frames.jsonl");
+    write_log(&log);
+    let plot = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_optistim"))
+            .arg("plot-log")
+            .arg(&log)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    assert!(plot(&[]).status.success());
+    let png = dir.path().join("timing.png");
+    let first = std::fs::read(&png).unwrap();
+    let out = plot(&[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("timing.png") && err.contains("--overwrite"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&png).unwrap(), first, "kept");
+    // Another run of the same log, replacing the figure when told.
+    let records = read_records(&log).unwrap();
+    let first_run = records[0].run.clone();
+    assert!(plot(&["--run", &first_run, "--overwrite"]).status.success());
+    assert_ne!(
+        std::fs::read(&png).unwrap(),
+        first,
+        "the first run's figure"
+    );
+}
+
 #[test]
 fn a_log_without_records_is_a_one_line_error() {
     let dir = tempfile::tempdir().unwrap();

@@ -1092,6 +1092,60 @@ fn bad_calibration_fails_before_anything_is_shown() {
     check_fails_before_presenting(&rig, "flat.tif", "160×240");
 }
 
+/// A replay whose third state turns the camera 90° away (about its y axis)
+/// stops before anything is shown, naming the state and the geometry;
+/// with `acceptance.allow_empty_frames` it runs, that frame is black and
+/// logged `out_of_field`, and the verdict does not hold it against the run.
+#[test]
+fn replay_state_out_of_field_stops_before_the_first_frame() {
+    let mut rig = Rig::new(Facility::default(), 4);
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let csv = trajectory_csv(4);
+    let mut lines: Vec<String> = csv.lines().map(String::from).collect();
+    lines[3] = lines[3].replacen(",1,0,0,0,", &format!(",{h},0,{h},0,"), 1);
+    std::fs::write(rig.path("trajectory.csv"), lines.join("\n") + "\n").unwrap();
+    let mut display = SimDisplay::keep_all(W, H);
+    let mut sync = SimSync::new();
+    let err = driver::run(
+        rig.plan(StateSource::Replay(rig.trajectory()), None),
+        &mut display,
+        &mut sync,
+        no_stop(),
+    )
+    .unwrap_err()
+    .to_string();
+    let half = (W as f64 / 2.0).hypot(H as f64 / 2.0) * 2.768e-4 / 3.0;
+    for part in [
+        format!("state 2 (t = {} s)", state_t(2)),
+        "90.00° off the boresight".into(),
+        format!("field half-angle {:.2}°", half.atan().to_degrees()),
+        "allow_empty_frames".into(),
+    ] {
+        assert!(err.contains(&part), "{part:?} not in {err}");
+    }
+    assert!(!err.contains('\n'), "{err}");
+    assert_eq!(display.presented(), 0);
+    assert!(!rig.path("frames.jsonl").exists());
+
+    rig.config.acceptance.allow_empty_frames = true;
+    let (summary, display, _) = replay(&rig);
+    let records = rig.records();
+    let out: Vec<bool> = records.iter().map(|r| r.out_of_field).collect();
+    assert_eq!(out, [false, false, true, false]);
+    let frames: Vec<_> = display.frames().collect();
+    assert_eq!(lit_outside_block(&frames[2].pixels), 0, "nothing shown");
+    assert!(lit_outside_block(&frames[3].pixels) > 2000);
+    assert_eq!(summary.out_of_field_frames, 1);
+    assert!(summary
+        .first_out_of_field
+        .as_deref()
+        .is_some_and(|s| s.starts_with("frame 2: the body is entirely out of the field")));
+    assert!(summary
+        .reasons
+        .iter()
+        .all(|r| !r.contains("out of the field")));
+}
+
 fn check_fails_before_presenting(rig: &Rig, file: &str, detail: &str) {
     let mut display = SimDisplay::keep_all(W, H);
     let mut sync = SimSync::new();

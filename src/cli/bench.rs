@@ -427,7 +427,14 @@ pub fn bench(
     json: Option<&Path>,
     plot: Option<&Path>,
     images: Option<&Path>,
+    overwrite: bool,
 ) -> Result<()> {
+    // Refused before the timing, not after it.
+    let mut outputs: Vec<_> = json.map(Path::to_path_buf).into_iter().collect();
+    if let Some(plot) = plot {
+        outputs.push(bench_plot::figure_path(plot)?);
+    }
+    optistim::outfile::check_no_earlier(&outputs, overwrite)?;
     let base = Scene::from_file(scene_path)?;
     let points = sweep.points(&base)?;
     let pin = base.camera.pinhole.clone();

@@ -13,9 +13,12 @@ use optistim::facility::timing::{runs, write_timing_figure, RunTiming};
 pub struct PlotLogArgs {
     /// Frame log (JSON lines) of `optistim run --log`.
     pub log: PathBuf,
-    /// Output directory for `timing.png`.
-    #[arg(long, default_value = "out")]
-    pub out: PathBuf,
+    /// Output directory for `timing.png` (default: the log's directory).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Replace an earlier `timing.png`.
+    #[arg(long)]
+    pub overwrite: bool,
     /// Run id to plot (a log may hold several runs); default: the last.
     #[arg(long)]
     pub run: Option<String>,
@@ -35,10 +38,16 @@ pub fn plot_log(args: &PlotLogArgs) -> Result<()> {
         (None, Some(last)) => last.clone(),
         (None, None) => bail!("{}: no complete frame record", args.log.display()),
     };
+    let out = args.out.clone().unwrap_or_else(|| {
+        args.log
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .map_or_else(|| PathBuf::from("."), PathBuf::from)
+    });
+    let path = out.join("timing.png");
+    optistim::outfile::check_no_earlier(std::slice::from_ref(&path), args.overwrite)?;
     let timing = RunTiming::of_run(&records, &run);
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    let path = args.out.join("timing.png");
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     write_timing_figure(&path, &timing)?;
     let l = timing.latency_ms;
     tracing::info!(

@@ -160,7 +160,7 @@ pub fn judge(s: &mut Summary, a: &AcceptanceConfig, ctx: &RunContext) {
     safe_rule(s, a, &mut f);
     missed_rule(s, a, ctx, &mut f);
     clip_rule(s, a, &mut f);
-    empty_rule(s, &mut f);
+    empty_rule(s, a, &mut f);
     s.verdict = f.verdict;
     s.reasons = f.reasons;
     s.hints = f.hints;
@@ -319,8 +319,19 @@ fn clip_rule(s: &Summary, a: &AcceptanceConfig, f: &mut Findings) {
     }
 }
 
-fn empty_rule(s: &Summary, f: &mut Findings) {
-    let _ = (s, f);
+fn empty_rule(s: &Summary, a: &AcceptanceConfig, f: &mut Findings) {
+    if s.out_of_field_frames == 0 || a.allow_empty_frames {
+        return;
+    }
+    f.add(
+        Verdict::Fail,
+        format!(
+            "{} of {} frames showed nothing: the state put the body out of the field ({})",
+            s.out_of_field_frames,
+            s.frames,
+            s.first_out_of_field.as_deref().unwrap_or("")
+        ),
+    );
 }
 
 #[cfg(test)]
@@ -449,6 +460,33 @@ mod tests {
             closed_loop: true,
             ..summary(125)
         });
+        assert_eq!(s.verdict, Verdict::Pass);
+    }
+
+    #[test]
+    fn frames_out_of_the_field_fail_unless_allowed() {
+        let s = judged(Summary {
+            out_of_field_frames: 3,
+            first_out_of_field: Some("frame 4: the body is entirely out of the field".into()),
+            ..summary(50)
+        });
+        assert_eq!(s.verdict, Verdict::Fail);
+        assert_eq!(
+            s.reasons,
+            [
+                "3 of 50 frames showed nothing: the state put the body out of the field \
+              (frame 4: the body is entirely out of the field)"
+            ]
+        );
+        let mut s = Summary {
+            out_of_field_frames: 3,
+            ..summary(50)
+        };
+        let allow = AcceptanceConfig {
+            allow_empty_frames: true,
+            ..Default::default()
+        };
+        judge(&mut s, &allow, &ctx());
         assert_eq!(s.verdict, Verdict::Pass);
     }
 

@@ -104,6 +104,10 @@ pub struct FrameRecord {
     /// The safe (black) frame was shown: no current state.
     #[serde(default)]
     pub safe_frame: bool,
+    /// The state put the body entirely out of the field: nothing of it
+    /// was shown.
+    #[serde(default)]
+    pub out_of_field: bool,
     /// For a body marked `lime_reference`: the frame's camera-effective
     /// disk irradiance over LIME's at the same geometry (the render's
     /// radiometric error against the real Moon, in the flight camera's
@@ -289,6 +293,13 @@ pub struct Summary {
     /// Of those, the frames before the first state arrived.
     #[serde(default)]
     pub safe_frames_waiting: u64,
+    /// Frames whose state put the body entirely out of the field.
+    #[serde(default)]
+    pub out_of_field_frames: u64,
+    /// The first of them and why (`frame 12: the body is entirely out of
+    /// the field: …`).
+    #[serde(default)]
+    pub first_out_of_field: Option<String>,
     /// Frames whose sync line was not sent (device gone, writer behind,
     /// error).
     #[serde(default)]
@@ -374,6 +385,8 @@ pub struct FrameLog {
     governor: Option<GovernorSummary>,
     clip_white: ClipSummary,
     clip_black: ClipSummary,
+    out_of_field: u64,
+    first_out_of_field: Option<String>,
 }
 
 impl FrameLog {
@@ -417,6 +430,8 @@ impl FrameLog {
             governor: None,
             clip_white: ClipSummary::default(),
             clip_black: ClipSummary::default(),
+            out_of_field: 0,
+            first_out_of_field: None,
         })
     }
 
@@ -485,6 +500,14 @@ impl FrameLog {
         self.governor = Some(GovernorSummary::new(labels));
     }
 
+    /// Counts a frame whose state put the body out of the field; `why`
+    /// names the geometry (kept for the first).
+    pub fn note_out_of_field(&mut self, frame: u64, why: &str) {
+        self.out_of_field += 1;
+        self.first_out_of_field
+            .get_or_insert_with(|| format!("frame {frame}: {why}"));
+    }
+
     /// Records the pre-flight render time [s] for the summary.
     pub fn set_preflight_render(&mut self, seconds: f64) {
         self.preflight_render = Some(seconds);
@@ -523,6 +546,8 @@ impl FrameLog {
             governor: self.governor.clone(),
             clip_white: self.clip_white,
             clip_black: self.clip_black,
+            out_of_field_frames: self.out_of_field,
+            first_out_of_field: self.first_out_of_field.clone(),
             ..Default::default()
         }
     }

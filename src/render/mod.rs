@@ -5,7 +5,8 @@
 //! the pixels its footprint covers. Pixels whose whole preimage is lit and
 //! visible take that preimage as their one cap ([`interior`]), so only the
 //! edges need the lune's caps. [`detector`] then applies the paper's Eq. 2,
-//! and [`output`] writes the files of `optistim render`.
+//! and [`output`] writes the files of `optistim render`; [`field`] says
+//! whether the body can be in the frame at all.
 //!
 //! The renderer's primary product is the *collected flux* image: for each
 //! pixel, Σ_i ∫_cap f_r μ0 (AU/d_sun)² μ / d² dS, the irradiance the pixel's
@@ -15,6 +16,7 @@
 pub mod caps;
 pub mod closed_form;
 pub mod detector;
+pub mod field;
 pub mod interior;
 pub mod lune;
 pub mod output;
@@ -164,7 +166,9 @@ impl Renderer {
             phase_angle: lune.alpha,
             ..Default::default()
         };
-        if lune.empty {
+        // Out of the field, nothing to lay out (and the cap layout of a
+        // body near the camera's plane would split cells without end).
+        if lune.empty || !field::field_check(&self.camera, state, body.radius).in_field {
             return stats;
         }
         let to_camera = state.camera_attitude.inverse();

@@ -186,6 +186,25 @@ fn open_source(
     })
 }
 
+/// Every state of a replay has the body in the screen's field: one that
+/// would show nothing stops the run before the first frame.
+fn check_states_in_field(model: &ScreenModel, scene: &Scene, t: &Trajectory) -> Result<()> {
+    for (row, s) in t.states.iter().enumerate() {
+        let check = model.field_check(scene, &scene_state(s, &scene.state));
+        if !check.in_field {
+            return Err(Error::invalid(
+                "trajectory",
+                format!(
+                    "state {row} (t = {} s): {} (acceptance.allow_empty_frames = true shows such states black)",
+                    s.t,
+                    check.describe()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Times the scene before the first frame and says whether it fits a slot.
 fn preflight_report(
     model: &mut ScreenModel,
@@ -377,6 +396,10 @@ pub fn run<D: Display, S: SyncPort + ?Sized>(
     let frame_id = frame_id_code(config)?;
     let line = sync_line(config, &scene)?;
     let closed_loop = matches!(plan.source, StateSource::Udp { .. });
+    if let (StateSource::Replay(t), false) = (&plan.source, config.acceptance.allow_empty_frames) {
+        let model = ScreenModel::new(config, &scene, geometry.as_ref());
+        check_states_in_field(&model, &scene, t)?;
+    }
     let (first_state, source, frames) = open_source(plan.source, plan.frames, &scene.state)?;
     tracing::info!(
         k = stamps.k,

@@ -106,6 +106,9 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
         }
         let (sync_sent, ack) = self.send_sync(job);
         let record = self.record(job, slot + self.slots.refresh, presented, sync_sent, ack);
+        if let Some(why) = &job.out_of_field {
+            self.log.note_out_of_field(job.frame, why);
+        }
         self.log.write(record)?;
         Ok(presented)
     }
@@ -190,6 +193,7 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
             calibration_sha256: self.stamps.flat_sha256.clone(),
             geometry_sha256: self.stamps.geometry_sha256.clone(),
             safe_frame: job.safe,
+            out_of_field: job.out_of_field.is_some(),
             render_over_lime: job.render_over_lime,
             fidelity: job.fidelity,
         }

@@ -39,6 +39,8 @@ pub(super) struct Job {
     pub render_over_lime: Option<f64>,
     /// The governor's rung and predicted error, when it governs.
     pub fidelity: Option<FrameFidelity>,
+    /// The state put the body entirely out of the field: why.
+    pub out_of_field: Option<String>,
 }
 
 /// Shared by the two threads for late latching: the next free slot with
@@ -228,6 +230,10 @@ impl RenderThread {
             let entry = drawn.clear(&mut buffer, self.models[rung].screen.0, black);
             self.converter.forget_previous_roi();
             let shown = state.as_ref().map(|s| scene_state(s, &self.scene.state));
+            let out_of_field = shown
+                .map(|st| self.models[rung].field_check(&self.scene, &st))
+                .filter(|c| !c.in_field)
+                .map(|c| c.describe());
             let roi = shown.and_then(|st| self.models[rung].render(&self.scene, &st));
             let render_end = Instant::now();
             let render_over_lime = shown.and_then(|st| self.models[rung].render_over_lime(&st));
@@ -259,6 +265,7 @@ impl RenderThread {
                 safe: state.is_none(),
                 render_over_lime,
                 fidelity,
+                out_of_field,
             };
             if self.ready.send(job).is_err() {
                 break;

@@ -11,6 +11,7 @@ use crate::radiometry::lime::{Lime, LimeBand};
 use crate::radiometry::reflectance::Reflectance;
 use crate::radiometry::spectrum::band_integrals;
 use crate::render::detector::{band_model, lime_camera_band, lunar_geometry};
+use crate::render::field::{field_check, FieldCheck};
 use crate::render::{BandModel, RenderSettings, Renderer};
 use crate::scene::{Pinhole, Scene, State};
 
@@ -247,6 +248,14 @@ impl ScreenModel {
             effective_all_caps: 0.0,
             last_roi: None,
         }
+    }
+
+    /// Whether the body of `scene` can be on the screen in `state` (the
+    /// render grid, turned as [`render`](Self::render) turns it).
+    pub fn field_check(&self, scene: &Scene, state: &State) -> FieldCheck {
+        let mut st = *state;
+        st.camera_attitude = state.camera_attitude * DQuat::from_rotation_z(self.rotation);
+        field_check(self.renderer.camera(), &st, scene.body.radius)
     }
 
     /// The grid the renderer draws on: the screen pinhole, or the ideal
