@@ -13,6 +13,7 @@
 //! | missed deadlines > `missed_degraded` (default 0.5 %) | degraded |
 //! | a frame's clipped flux (white or black level) > `max_clip_flux` of its disk flux (default 0.1 %) | degraded |
 //! | a frame with the body out of the field, unless `allow_empty_frames` | fail |
+//! | governed frames whose rung's predicted pixel error exceeds `timing.governor_max_pixel_error` | degraded |
 //! | stopped before its planned frames (Ctrl-C, SIGTERM, window closed) | fail |
 //! | no frame shown | fail |
 
@@ -161,9 +162,42 @@ pub fn judge(s: &mut Summary, a: &AcceptanceConfig, ctx: &RunContext) {
     missed_rule(s, a, ctx, &mut f);
     clip_rule(s, a, &mut f);
     empty_rule(s, a, &mut f);
+    governor_rule(s, &mut f);
     s.verdict = f.verdict;
     s.reasons = f.reasons;
     s.hints = f.hints;
+}
+
+/// Frames the governor rendered below the fidelity floor are degraded:
+/// shown, counted and named, never silently.
+fn governor_rule(s: &Summary, f: &mut Findings) {
+    let Some(g) = &s.governor else { return };
+    if g.degraded_frames > 0 {
+        let worst = g
+            .rungs
+            .iter()
+            .filter(|r| r.frames > 0)
+            .map(|r| r.max_pixel_error)
+            .fold(0.0, f64::max);
+        f.add(
+            Verdict::Degraded,
+            format!(
+                "{} of {} frames were rendered at a governor rung whose predicted per-pixel error exceeds timing.governor_max_pixel_error (worst p99 {:.1} %)",
+                g.degraded_frames,
+                s.frames,
+                100.0 * worst
+            ),
+        );
+        f.hints.push(
+            "timing.refreshes_per_frame = 2 gives each frame twice the time (a finer rung)".into(),
+        );
+    }
+    if g.unfit_frames > 0 {
+        f.hints.push(format!(
+            "{} frames were predicted not to fit their slot even at the coarsest rung",
+            g.unfit_frames
+        ));
+    }
 }
 
 fn sync_rule(s: &Summary, a: &AcceptanceConfig, f: &mut Findings) {
