@@ -161,7 +161,9 @@ fn run_continues_the_clock_and_refuses_a_corrupt_one() {
     for (k, expected) in [(1, 3.0 / 60.0), (2, 6.0 / 60.0)] {
         let out = run(dir.path(), &path);
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{stderr}");
+        // 0 or the verdict's 4 (the simulated camera's captures can make a
+        // short run miss deadlines): the run ran, and kept the clock.
+        assert!(matches!(out.status.code(), Some(0 | 4)), "{stderr}");
         let said = if k == 1 {
             "fresh power-on"
         } else {
