@@ -1030,7 +1030,9 @@ fn stop_flag_stops_cleanly() {
         rig.plan(StateSource::Replay(rig.trajectory()), None),
         stop.clone(),
     );
-    std::thread::sleep(Duration::from_millis(300));
+    // Stop once frames are being shown (the start-up checks every state of
+    // the trajectory first, slower when the other tests load the cores).
+    wait_for_log(&rig.path("frames.jsonl"), "a few frames", |r| r.len() >= 3);
     let stopped_at = Instant::now();
     stop.store(true, Ordering::Relaxed);
     let (result, display, sync) = handle.join().unwrap();
