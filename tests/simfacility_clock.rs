@@ -147,6 +147,8 @@ fn run(dir: &Path, clock: &Path) -> std::process::Output {
         .arg(dir.join("f.jsonl"))
         .arg("--summary")
         .arg(dir.join("s.json"))
+        // The runs share one log and summary on purpose.
+        .args(["--append", "--overwrite"])
         .arg("--sim-clock")
         .arg(clock)
         .output()
