@@ -364,7 +364,7 @@ fn run_outputs(args: &RunArgs) -> Result<(std::path::PathBuf, std::path::PathBuf
 /// two runs never share one.
 fn new_run_dir(runs: &Path) -> Result<std::path::PathBuf> {
     std::fs::create_dir_all(runs).with_context(|| format!("creating {}", runs.display()))?;
-    let stamp = utc_stamp(std::time::SystemTime::now());
+    let stamp = optistim::utc::compact(optistim::utc::now_secs());
     for n in 1..1000 {
         let name = if n == 1 {
             stamp.clone()
@@ -379,30 +379,6 @@ fn new_run_dir(runs: &Path) -> Result<std::path::PathBuf> {
         }
     }
     anyhow::bail!("{}: no free run directory for {stamp}", runs.display())
-}
-
-/// `YYYYMMDDTHHMMSSZ` of `t` (civil date from days since 1970, Howard
-/// Hinnant's algorithm).
-fn utc_stamp(t: std::time::SystemTime) -> String {
-    let secs = t
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    let (days, rem) = ((secs / 86_400) as i64, secs % 86_400);
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}Z",
-        rem / 3600,
-        rem / 60 % 60,
-        rem % 60
-    )
 }
 
 /// Where states come from: `--listen`, else `--trajectory`, else the

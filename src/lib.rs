@@ -16,6 +16,7 @@
 //! | [`instruments`] | the calibration's spot meter and camera, real and simulated, behind traits |
 //! | [`calibration`] | `optistim calibrate`: the screen's LUT, flat field, geometry and verification, measured through the instruments |
 //! | [`simfacility`] | a seeded physics model of screen, collimator, camera and spot meter: the truth to rehearse calibration and `run` on |
+//! | [`utc`] | UTC calendar stamps for reports and run directories |
 //! | [`validate`] | comparison with real flight images (PDS3/AMIE, SSIM) |
 //! | [`figures`] | small PNG figures for reports: curves with residuals, heatmaps, quivers |
 //!
@@ -46,6 +47,7 @@ pub mod render;
 pub mod render_settings;
 pub mod scene;
 pub mod simfacility;
+pub mod utc;
 pub mod validate;
 
 pub use error::{Error, Result};

@@ -18,36 +18,6 @@ pub fn lattice_axis(size: usize, step: usize) -> Vec<usize> {
     xs
 }
 
-/// Current UTC time as `YYYY-MM-DDTHH:MM:SSZ`.
-pub fn utc_now() -> String {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
-        .unwrap_or(0);
-    utc_from_unix(secs)
-}
-
-/// `secs` after 1970-01-01T00:00:00Z as `YYYY-MM-DDTHH:MM:SSZ`.
-fn utc_from_unix(secs: u64) -> String {
-    let (days, rem) = ((secs / 86_400) as i64, secs % 86_400);
-    // Days since 1970-01-01 → civil date (H. Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
-        rem / 3600,
-        rem / 60 % 60,
-        rem % 60
-    )
-}
-
 /// The geometry CSV text of a solution.
 pub fn geometry_csv(
     solution: &Solution,
@@ -112,7 +82,7 @@ pub fn write_all(
     camera: &str,
     out_dir: &Path,
 ) -> Result<GeometricReport> {
-    let date = utc_now();
+    let date = crate::utc::now();
     let csv_path = out_dir.join(&cfg.output);
     let text = geometry_csv(solution, grid, cfg, camera, &date);
     std::fs::write(&csv_path, &text).map_err(|e| Error::io(&csv_path, e))?;
@@ -230,17 +200,5 @@ mod tests {
         assert_eq!(round_125(0.25), 0.2);
         assert_eq!(round_125(1.0), 1.0);
         assert_eq!(round_125(9.9), 5.0);
-    }
-
-    #[test]
-    fn utc_dates_follow_the_calendar() {
-        assert_eq!(utc_from_unix(0), "1970-01-01T00:00:00Z");
-        // A leap day, and a date checked with another calendar library.
-        assert_eq!(utc_from_unix(951_782_400), "2000-02-29T00:00:00Z");
-        assert_eq!(utc_from_unix(1_795_000_000), "2026-11-18T11:06:40Z");
-        assert_eq!(
-            utc_from_unix(1_795_000_000 + 86_399 - 40_000),
-            "2026-11-18T23:59:59Z"
-        );
     }
 }
