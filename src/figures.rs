@@ -345,6 +345,10 @@ pub struct LogXPanels {
     pub size: (u32, u32),
 }
 
+/// Fraction of the data's y range added above it in [`log_x_panels`]: the
+/// legend's band.
+const LEGEND_HEADROOM: f64 = 0.5;
+
 /// Writes side-by-side log-x panels as PNG.
 pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
     let path = path.as_ref();
@@ -408,9 +412,15 @@ fn log_x_panel_on(
         .flat_map(|s| finite_points(s, panel.log_y))
         .map(|p| p.1);
     let (y0, y1) = span(ys, panel.log_y);
+    // Headroom above the data (a third of the panel) for the legend, so it
+    // never covers a point.
+    let y1 = if panel.log_y {
+        y1 * (y1 / y0).powf(LEGEND_HEADROOM)
+    } else {
+        y1 + LEGEND_HEADROOM * (y1 - y0)
+    };
     let xf = |v: &f64| tick_log(*v);
     let none: Option<&str> = None;
-    // Curves of time against error run from the top left down to the right.
     let legend = SeriesLabelPosition::UpperRight;
     if panel.log_y {
         // Labels start at the first power of ten (see `log_x_panels`).
