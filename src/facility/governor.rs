@@ -252,8 +252,11 @@ impl Governor {
         if self.ratios.is_empty() {
             return 1.0;
         }
-        let mut r: Vec<f64> = self.ratios.iter().copied().collect();
-        r.sort_by(f64::total_cmp);
+        // On the stack: this runs every frame.
+        let mut buf = [0.0f64; LOAD_WINDOW];
+        let r = &mut buf[..self.ratios.len()];
+        r.iter_mut().zip(&self.ratios).for_each(|(a, &b)| *a = b);
+        r.sort_unstable_by(f64::total_cmp);
         let k = ((r.len() - 1) as f64 * LOAD_QUANTILE).round() as usize;
         r[k].max(0.25)
     }
