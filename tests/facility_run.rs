@@ -361,6 +361,7 @@ fn spawn_udp_run(
 
 #[test]
 fn sim_end_to_end_replay() {
+    let _machine = common::machine::shared();
     let rig = Rig::new(Facility::default(), 5);
     let (summary, display, sync) = replay(&rig);
 
@@ -428,6 +429,7 @@ fn sim_end_to_end_replay() {
 /// frames' work (render + conversion) fits with a quarter of margin.
 #[test]
 fn missed_deadlines_set_the_verdict_and_the_hint() {
+    let _machine = common::machine::shared();
     let rig = Rig::new(
         Facility {
             refresh_hz: 1000.0,
@@ -476,6 +478,7 @@ fn missed_deadlines_set_the_verdict_and_the_hint() {
 /// starts. Holds however slow the machine is; a 17 ms grid would fail it.
 #[test]
 fn frames_are_paced_on_slots_of_several_refreshes() {
+    let _machine = common::machine::exclusive();
     let rig = Rig::new(
         Facility {
             refreshes_per_frame: 3,
@@ -517,6 +520,7 @@ fn frames_are_paced_on_slots_of_several_refreshes() {
 /// queued one would make it two slots.)
 #[test]
 fn late_latching_shows_a_state_younger_than_one_slot() {
+    let _machine = common::machine::exclusive();
     // Half-second slots: long enough that a render slowed by the other
     // tests of this binary on two cores (up to ~130 ms seen) still leaves
     // the latch well inside the slot; without late latching every state
@@ -569,6 +573,7 @@ fn expected_screen_radiance(rig: &Rig) -> Vec<f64> {
 
 #[test]
 fn drive_levels_invert_the_lut() {
+    let _machine = common::machine::shared();
     let rig = Rig::new(Facility::default(), 1);
     let (_, display, _) = replay(&rig);
     let frame = &display.last().unwrap().pixels;
@@ -689,6 +694,7 @@ fn drive_levels_invert_the_lut() {
 /// not judged (`missed_degraded = missed_fail = 1`).
 #[test]
 fn cli_strict_exits_3_on_a_degraded_run() {
+    let _machine = common::machine::shared();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let tmp = tempfile::tempdir().unwrap();
     let text = std::fs::read_to_string(root.join("configs/facility.toml"))
@@ -737,6 +743,7 @@ fn cli_strict_exits_3_on_a_degraded_run() {
 
 #[test]
 fn udp_closed_loop_renders_exactly_the_valid_in_order_states() {
+    let _machine = common::machine::shared();
     let rig = Rig::new(
         Facility {
             refresh_hz: 20.0,
@@ -817,6 +824,7 @@ fn udp_closed_loop_renders_exactly_the_valid_in_order_states() {
 
 #[test]
 fn serial_device_gone_does_not_stop_or_block_the_run() {
+    let _machine = common::machine::exclusive();
     let rig = Rig::new(Facility::default(), 8);
     let mut display = SimDisplay::new(W, H, 0);
     let mut sync = SimSync::new();
@@ -883,6 +891,7 @@ fn serial_device_gone_does_not_stop_or_block_the_run() {
 
 #[test]
 fn state_timeout_shows_the_safe_black_frame() {
+    let _machine = common::machine::shared();
     let rig = Rig::new(
         Facility {
             refresh_hz: 20.0,
@@ -976,6 +985,7 @@ fn state_timeout_shows_the_safe_black_frame() {
 /// (black) frame, and the run fails saying no state was received.
 #[test]
 fn udp_source_that_never_sends_fails() {
+    let _machine = common::machine::shared();
     let rig = Rig::new(Facility::default(), 1);
     let client = UdpSocket::bind("127.0.0.1:0").unwrap();
     let (_, handle) = spawn_udp_run(&rig, &client, 6);
@@ -997,6 +1007,7 @@ fn udp_source_that_never_sends_fails() {
 
 #[test]
 fn display_closed_ends_the_run_cleanly() {
+    let _machine = common::machine::shared();
     let rig = Rig::new(Facility::default(), 10);
     let (summary, display, sync) = replay_on(&rig, SimDisplay::keep_all(W, H).close_after(3));
     assert_eq!(display.presented(), 3);
@@ -1018,6 +1029,7 @@ fn display_closed_ends_the_run_cleanly() {
 
 #[test]
 fn stop_flag_stops_cleanly() {
+    let _machine = common::machine::exclusive();
     let rig = Rig::new(
         Facility {
             refresh_hz: 30.0,
@@ -1063,6 +1075,7 @@ fn stop_flag_stops_cleanly() {
 
 #[test]
 fn bad_calibration_fails_before_anything_is_shown() {
+    let _machine = common::machine::shared();
     // (file name, content or None for the flat-field case, text the error
     // must contain besides the file name)
     let bad_luts = [
@@ -1108,6 +1121,7 @@ fn bad_calibration_fails_before_anything_is_shown() {
 /// logged `out_of_field`, and the verdict does not hold it against the run.
 #[test]
 fn replay_state_out_of_field_stops_before_the_first_frame() {
+    let _machine = common::machine::shared();
     let mut rig = Rig::new(Facility::default(), 4);
     let h = std::f64::consts::FRAC_1_SQRT_2;
     let csv = trajectory_csv(4);
@@ -1187,6 +1201,7 @@ fn optistim() -> std::process::Command {
 
 #[test]
 fn cli_runs_the_bundled_facility() {
+    let _machine = common::machine::shared();
     let tmp = tempfile::tempdir().unwrap();
     let log = tmp.path().join("f.jsonl");
     let summary = tmp.path().join("s.json");
@@ -1253,6 +1268,7 @@ fn cli_runs_the_bundled_facility() {
 /// by 0.7 % over 450–820 nm: the logged error includes that).
 #[test]
 fn frames_report_the_renders_error_against_lime() {
+    let _machine = common::machine::shared();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut config = FacilityConfig::load(root.join("configs/facility.toml")).unwrap();
     config.drive.sub_bands = 16;
@@ -1299,6 +1315,7 @@ fn frames_report_the_renders_error_against_lime() {
 
 #[test]
 fn cli_bad_facility_file_is_a_one_line_error_naming_it() {
+    let _machine = common::machine::shared();
     let tmp = tempfile::tempdir().unwrap();
     let bad = tmp.path().join("broken_facility.toml");
     let text = std::fs::read_to_string(
@@ -1338,6 +1355,7 @@ fn cli_bad_facility_file_is_a_one_line_error_naming_it() {
 /// first frame would overwrite anything it points to).
 #[test]
 fn cli_refuses_zero_frames_and_a_symlinked_summary() {
+    let _machine = common::machine::shared();
     let tmp = tempfile::tempdir().unwrap();
     let out = optistim()
         .args(["run", "configs/facility.toml", "--frames", "0"])
@@ -1372,6 +1390,7 @@ fn cli_refuses_zero_frames_and_a_symlinked_summary() {
 /// `--serial none` (no sync on purpose) counts nothing as unsent.
 #[test]
 fn cli_absent_serial_device_fails_the_run() {
+    let _machine = common::machine::shared();
     let tmp = tempfile::tempdir().unwrap();
     let device = tmp.path().join("ttyUSB9");
     let out = optistim()
@@ -1427,6 +1446,7 @@ fn cli_absent_serial_device_fails_the_run() {
 /// A log redirected to a file or a pipe carries no terminal colour codes.
 #[test]
 fn redirected_log_has_no_colour_codes() {
+    let _machine = common::machine::shared();
     let tmp = tempfile::tempdir().unwrap();
     let out = optistim()
         .args(["run", "configs/facility.toml", "--frames", "2", "--log"])
@@ -1449,6 +1469,7 @@ fn redirected_log_has_no_colour_codes() {
 /// calibration files: a missing override is the error, named.
 #[test]
 fn calibration_file_overrides_are_used() {
+    let _machine = common::machine::shared();
     for (flag, path) in [
         ("--lut", "no/such/lut.csv"),
         ("--flat-field", "no/such/flat.tif"),

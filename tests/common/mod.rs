@@ -355,3 +355,24 @@ pub fn visible_cap_irradiance(
     }
     total * radius * radius
 }
+
+/// The machine, shared between the tests of one binary. Tests that judge
+/// wall-clock time (pacing, latency, "does not block") take it exclusively,
+/// so the other tests of the binary, which cargo runs in parallel, cannot
+/// slow them on a two-core runner; every other test takes it shared.
+pub mod machine {
+    use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
+
+    static MACHINE: RwLock<()> = RwLock::new(());
+
+    /// For a test whose assertions do not depend on elapsed time.
+    pub fn shared() -> RwLockReadGuard<'static, ()> {
+        MACHINE.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// For a test that asserts on elapsed time: no other test of the binary
+    /// runs while it does.
+    pub fn exclusive() -> RwLockWriteGuard<'static, ()> {
+        MACHINE.write().unwrap_or_else(|e| e.into_inner())
+    }
+}
