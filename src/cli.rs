@@ -270,6 +270,9 @@ pub fn run(args: &RunArgs) -> Result<std::process::ExitCode> {
             100.0 * (hi - 1.0)
         );
     }
+    if let Some(u) = summary.radiometric_u_k2_percent_max {
+        println!("radiometric uncertainty of the frames shown (LUT, k = 2): at most {u:.2} %");
+    }
     for (name, clip) in [
         ("white", &summary.clip_white),
         ("black", &summary.clip_black),

@@ -571,6 +571,46 @@ fn expected_screen_radiance(rig: &Rig) -> Vec<f64> {
         .collect()
 }
 
+/// Each frame's radiometric uncertainty is the LUT's k = 2 column weighted
+/// by the flux each pixel asks of the screen: recomputed here from the
+/// test display's gamma curve (level of a radiance in closed form) and an
+/// uncertainty falling linearly from 7 % at black to 1 % at the top.
+#[test]
+fn frames_carry_the_luts_uncertainty_weighted_by_flux() {
+    let _machine = common::machine::shared();
+    let rig = Rig::new(Facility::default(), 2);
+    let u_of_level = |v: f64| 1.0 + 6.0 * (1.0 - v / 255.0);
+    let mut csv = String::from("drive_level,radiance_w_m2_sr,uncertainty_k2_percent\n");
+    for l in 0..=255u32 {
+        let (r, u) = (test_lut_radiance(l), u_of_level(l as f64));
+        csv.push_str(&format!("{l},{r},{u}\n"));
+    }
+    std::fs::write(rig.path("lut.csv"), csv).unwrap();
+    replay(&rig);
+    let (mut flux, mut weighted) = (0.0, 0.0);
+    for t in expected_screen_radiance(&rig) {
+        if t > 0.0 {
+            let x = ((t - common::TEST_LUT_BLACK).max(0.0) / L_MAX).min(1.0);
+            let level = 255.0 * x.powf(1.0 / common::TEST_LUT_GAMMA);
+            flux += t;
+            weighted += t * u_of_level(level);
+        }
+    }
+    let expected = weighted / flux;
+    let records = rig.records();
+    let got = records[0].radiometric_u_k2_percent.unwrap();
+    assert!(
+        (got - expected).abs() < 0.05,
+        "frame 0: {got} % against {expected} %"
+    );
+    let max = rig.summary_file().radiometric_u_k2_percent_max.unwrap();
+    let largest = records
+        .iter()
+        .filter_map(|r| r.radiometric_u_k2_percent)
+        .fold(0.0, f64::max);
+    assert_eq!(max, largest);
+}
+
 #[test]
 fn drive_levels_invert_the_lut() {
     let _machine = common::machine::shared();

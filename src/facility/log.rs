@@ -114,6 +114,12 @@ pub struct FrameRecord {
     /// electrons); absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub render_over_lime: Option<f64>,
+    /// The frame's radiometric uncertainty (k = 2, %): the display LUT's
+    /// per-level budget weighted by the flux each pixel asks of the screen
+    /// ([`crate::facility::frame_uncertainty`]); absent for a LUT without
+    /// its `uncertainty_k2_percent` column or a frame with nothing lit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radiometric_u_k2_percent: Option<f64>,
     /// The frame-time governor's rung and its predicted error (absent with
     /// `timing.governor = "off"`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -313,6 +319,10 @@ pub struct Summary {
     /// when no frame had one.
     #[serde(default)]
     pub render_over_lime_range: Option<[f64; 2]>,
+    /// Largest `radiometric_u_k2_percent` of the run's frames (k = 2, %);
+    /// None when no frame had one.
+    #[serde(default)]
+    pub radiometric_u_k2_percent_max: Option<f64>,
     /// Frames per governor rung and their predicted errors (absent with
     /// `timing.governor = "off"`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -382,6 +392,7 @@ pub struct FrameLog {
     sync_not_sent: u64,
     udp_kernel_drops: Option<u64>,
     lime_range: Option<[f64; 2]>,
+    u_max: Option<f64>,
     governor: Option<GovernorSummary>,
     clip_white: ClipSummary,
     clip_black: ClipSummary,
@@ -427,6 +438,7 @@ impl FrameLog {
             sync_not_sent: 0,
             udp_kernel_drops: None,
             lime_range: None,
+            u_max: None,
             governor: None,
             clip_white: ClipSummary::default(),
             clip_black: ClipSummary::default(),
@@ -484,6 +496,9 @@ impl FrameLog {
             let [lo, hi] = self.lime_range.get_or_insert([r, r]);
             *lo = lo.min(r);
             *hi = hi.max(r);
+        }
+        if let Some(u) = rec.radiometric_u_k2_percent {
+            self.u_max = Some(self.u_max.map_or(u, |m: f64| m.max(u)));
         }
         if let Some(r) = rec.t_state_received {
             self.latencies.add(rec.t_presented - r);
@@ -543,6 +558,7 @@ impl FrameLog {
             sync_not_sent: self.sync_not_sent,
             udp_kernel_drops: self.udp_kernel_drops,
             render_over_lime_range: self.lime_range,
+            radiometric_u_k2_percent_max: self.u_max,
             governor: self.governor.clone(),
             clip_white: self.clip_white,
             clip_black: self.clip_black,

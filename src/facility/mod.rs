@@ -10,6 +10,7 @@
 //! | [`geometry`] | geometric calibration file (screen pixel → camera direction) and the pre-warp |
 //! | [`governor`] | the frame-time governor: render fidelity rungs, their cost and error, the choice per frame |
 //! | [`dither`] | target radiance → drive levels in the body's ROI (k, τ, flat field, dithering) |
+//! | [`frame_uncertainty`] | a frame's radiometric uncertainty from the LUT's per-level budget |
 //! | [`frame_id`] | frame number drawn as a binary block in a corner, and its decoder |
 //! | [`display`] | the [`Display`](display::Display) trait, simulated and full-screen X11 displays |
 //! | [`serial`] | per-frame sync command over a serial port that never blocks the loop |
@@ -32,6 +33,7 @@ pub mod dither;
 pub mod driver;
 pub mod epoch_trajectory;
 pub mod frame_id;
+pub mod frame_uncertainty;
 pub mod geometry;
 pub mod governor;
 pub mod log;

@@ -195,6 +195,7 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
             safe_frame: job.safe,
             out_of_field: job.out_of_field.is_some(),
             render_over_lime: job.render_over_lime,
+            radiometric_u_k2_percent: job.radiometric_u_k2_percent,
             fidelity: job.fidelity,
         }
     }

@@ -12,6 +12,7 @@ use super::screen::ScreenModel;
 use crate::error::Result;
 use crate::facility::dither::{ConvertStats, Converter, Roi};
 use crate::facility::frame_id::FrameIdCode;
+use crate::facility::frame_uncertainty::UncertaintyTable;
 use crate::facility::governor::{FrameFidelity, Governor};
 use crate::facility::throttle::Throttle;
 use crate::facility::trajectory::State as TrajectoryState;
@@ -37,6 +38,8 @@ pub(super) struct Job {
     pub safe: bool,
     /// The render's error against LIME (a `lime_reference` body).
     pub render_over_lime: Option<f64>,
+    /// The frame's radiometric uncertainty from the LUT's budget (k = 2, %).
+    pub radiometric_u_k2_percent: Option<f64>,
     /// The governor's rung and predicted error, when it governs.
     pub fidelity: Option<FrameFidelity>,
     /// The state put the body entirely out of the field: why.
@@ -206,6 +209,7 @@ impl RenderThread {
     /// (closed loop on Linux).
     pub fn run(mut self) -> Result<Option<u64>> {
         let black = self.converter.black_pixel();
+        let uncertainty = UncertaintyTable::new(self.converter.lut());
         let mut no_state = Throttle::default();
         let mut budget = Budget::default();
         let mut last = None;
@@ -240,6 +244,10 @@ impl RenderThread {
             let fidelity =
                 self.account(choice, shown.as_ref(), &mut area, render_end - render_start);
             let stats = self.convert(rung, roi, frame, &mut buffer, &mut warned_peak)?;
+            let radiometric_u_k2_percent = uncertainty
+                .as_ref()
+                .zip(roi)
+                .and_then(|(u, r)| u.frame(&self.models[rung].roi_target, r.width, self.factor()));
             drawn.remember(entry, roi);
             if state.is_none() {
                 if let Some(more) = no_state.hit(Instant::now()) {
@@ -264,6 +272,7 @@ impl RenderThread {
                 stats,
                 safe: state.is_none(),
                 render_over_lime,
+                radiometric_u_k2_percent,
                 fidelity,
                 out_of_field,
             };
@@ -386,6 +395,12 @@ impl RenderThread {
                 })
             }
         }
+    }
+
+    /// Screen radiance per unit target radiance: k ÷ τ.
+    fn factor(&self) -> f64 {
+        let s = self.converter.settings();
+        s.scale_k / s.transmission
     }
 
     /// Drive levels of the rendered region into `buffer`; returns the
