@@ -24,11 +24,16 @@ pub enum Target {
     Pds3Image,
     UdpDatagram,
     SyncTemplate,
+    SimClock,
+    DarkModel,
+    Responsivity,
+    SimFacilityToml,
+    CalibrateToml,
 }
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 11] = [
+    pub const ALL: [Target; 16] = [
         Target::FacilityToml,
         Target::SceneToml,
         Target::Trajectory,
@@ -40,6 +45,11 @@ impl Target {
         Target::Pds3Image,
         Target::UdpDatagram,
         Target::SyncTemplate,
+        Target::SimClock,
+        Target::DarkModel,
+        Target::Responsivity,
+        Target::SimFacilityToml,
+        Target::CalibrateToml,
     ];
 
     /// Short name for reports.
@@ -56,6 +66,11 @@ impl Target {
             Target::Pds3Image => "pds3_image",
             Target::UdpDatagram => "udp_datagram",
             Target::SyncTemplate => "sync_template",
+            Target::SimClock => "sim_clock_json",
+            Target::DarkModel => "dark_model_toml",
+            Target::Responsivity => "responsivity_toml",
+            Target::SimFacilityToml => "simfacility_toml",
+            Target::CalibrateToml => "calibrate_toml",
         }
     }
 
@@ -75,7 +90,10 @@ impl Target {
             ],
             Target::Trajectory => vec![head(include_bytes!("../configs/moon_approach.csv"), 12)],
             Target::EpochTrajectory => vec![s(EPOCH_TRAJECTORY_SEED.as_bytes())],
-            Target::Lut => vec![s(include_bytes!("../calib/example_lut.csv"))],
+            Target::Lut => vec![
+                s(include_bytes!("../calib/example_lut.csv")),
+                s(LUT_UNCERTAINTY_SEED.as_bytes()),
+            ],
             Target::Geometry => vec![s(GEOMETRY_SEED.as_bytes())],
             Target::Spectrum => vec![head(include_bytes!("../data/solar/astm_e490_am0.csv"), 40)],
             // The label records (what the label parser reads) of both
@@ -91,6 +109,13 @@ impl Target {
                 s(br#"{"t":1.0,"camera_position":[0,0,-1e7],"camera_attitude":[1,0,0,0],"sun_position":[1.5e11,0,0]}"#),
             ],
             Target::SyncTemplate => vec![s(b"FRAME {id} {t} {exposure_us}\n")],
+            Target::SimClock => vec![s(
+                br#"{"format": "optistim-simclock-1", "seconds_since_power_on": 3600.0}"#,
+            )],
+            Target::DarkModel => vec![s(DARK_MODEL_SEED.as_bytes())],
+            Target::Responsivity => vec![s(RESPONSIVITY_SEED.as_bytes())],
+            Target::SimFacilityToml => vec![s(include_bytes!("../configs/simfacility.toml"))],
+            Target::CalibrateToml => vec![s(include_bytes!("../configs/facility_calibrate.toml"))],
         }
     }
 
@@ -122,9 +147,51 @@ impl Target {
             Target::Pds3Image => crate::validate::pds3::parse_image(bytes, name).is_ok(),
             Target::UdpDatagram => f::udp::parse_datagram(bytes).is_ok(),
             Target::SyncTemplate => f::serial::CommandTemplate::parse(&text).is_ok(),
+            Target::SimClock => {
+                let path = scratch.join("clock.json");
+                std::fs::write(&path, bytes).is_ok()
+                    && crate::simfacility::clock::load(&path).is_ok()
+            }
+            Target::DarkModel => dark_model(bytes, scratch),
+            Target::Responsivity => {
+                crate::calibration::responsivity::CameraResponsivity::parse(&text, name).is_ok()
+            }
+            Target::SimFacilityToml => {
+                crate::simfacility::config::SimFacilityConfig::parse(&text, name).is_ok()
+            }
+            Target::CalibrateToml => {
+                crate::calibration::config::CalibrateConfig::parse(&text, name, 8).is_ok()
+            }
         }
     }
 }
+
+/// A dark model file read beside two 4×4 16-bit dark frames written into
+/// `scratch` (the seed's `d1.png` and `d2.png`).
+fn dark_model(bytes: &[u8], scratch: &Path) -> bool {
+    for (name, level) in [("d1.png", 100u16), ("d2.png", 120)] {
+        let img = image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(4, 4, image::Luma([level]));
+        if img.save(scratch.join(name)).is_err() {
+            return false;
+        }
+    }
+    let path = scratch.join("dark.toml");
+    std::fs::write(&path, bytes).is_ok()
+        && crate::calibration::dark::DarkBank::from_file(&path, "cam").is_ok()
+}
+
+/// A LUT with its per-level expanded uncertainty column.
+const LUT_UNCERTAINTY_SEED: &str = "drive_level,radiance_w_m2_sr,uncertainty_k2_percent\n\
+0,0.001,8.0\n64,0.05,3.0\n128,0.25,1.5\n192,0.6,1.2\n255,1.1,1.2\n";
+
+/// A dark model of two exposures.
+const DARK_MODEL_SEED: &str = "camera = \"cam\"\nresolution = [4, 4]\nsaturation_dn = 65535.0\n\
+[[frame]]\nexposure_s = 0.001\npath = \"d1.png\"\n\
+[[frame]]\nexposure_s = 0.01\npath = \"d2.png\"\n";
+
+/// A camera responsivity file as `sim-lab` writes it.
+const RESPONSIVITY_SEED: &str = "responsivity_dn_per_s_per_w_m2_sr = 1.25e6\n\
+uncertainty_k2_percent = 0.5\nregion_px = [40, 40, 48, 48]\n";
 
 /// A scene that reads no file.
 const SCENE_SEED: &str = r#"[camera]
