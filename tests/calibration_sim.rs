@@ -618,11 +618,12 @@ fn sensitivity_of_the_stimulus_to_input_errors() {
         last(&ok),
         r.failures
     );
-    // With darks the camera's spots all pass. The broadband meter's one F
-    // (from the white spectrum) misses the panel's bluer black leak: it
-    // reads up to ~3 % high at the darkest patches, and verify says so
-    // (docs/CALIBRATION.md); the camera, reading through its own
-    // responsivity, does not share that error.
+    // With darks the campaign passes its verify. The broadband meter's one
+    // F (from the white spectrum) misses the panel's bluer black leak: it
+    // reads up to ~3 % high at the darkest patches, so verify shows those
+    // readings without judging them (below 10 % of the LUT's maximum,
+    // docs/CALIBRATION.md); the camera, reading through its own
+    // responsivity, judges them.
     let camera_failures = |v: &VerifyReport| {
         v.patches
             .iter()
@@ -639,7 +640,20 @@ fn sensitivity_of_the_stimulus_to_input_errors() {
         camera_failures(&ok),
         ok.failures - camera_failures(&ok)
     );
-    assert!(r.failures > 0 && camera_failures(&ok) == 0);
+    let unjudged: Vec<f64> = ok
+        .patches
+        .iter()
+        .filter(|p| !p.meter_judged)
+        .filter_map(|p| p.meter_error_percent)
+        .collect();
+    println!("broadband readings shown, not judged: {unjudged:.2?} %");
+    let floor = 0.1 * lut_d.max_radiance();
+    assert!(ok
+        .patches
+        .iter()
+        .all(|p| p.meter_judged == (p.target >= floor)));
+    assert!(!unjudged.is_empty());
+    assert!(r.failures > 0 && camera_failures(&ok) == 0 && ok.failures == 0);
 
     // Intrinsics: focal length +0.25 %, principal point +0.5 px.
     let (_, g0, rep0) = sim_flat(1.0, 0.0);

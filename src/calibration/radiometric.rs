@@ -450,6 +450,11 @@ struct Scale {
     mismatch_k2_percent: Option<f64>,
 }
 
+/// Fraction of the top level's signal above which the meter sets the
+/// absolute scale: where its relative noise is smallest and where a
+/// broadband meter's single F (from the screen's white spectrum) holds.
+pub const SCALE_FLOOR: f64 = 0.1;
+
 /// Radiance per DN/s: least squares of the meter's camera-effective
 /// radiance against the camera response over the levels above 10 % of the
 /// top (where the meter's relative noise is smallest), or the configured
@@ -483,7 +488,7 @@ fn absolute_scale(
     let (mut num, mut den, mut ratios) = (0.0, 0.0, Vec::new());
     for (l, t) in levels.iter().zip(&targets) {
         if let Some(t) = t {
-            if l.camera_dn_per_s >= 0.1 * top {
+            if l.camera_dn_per_s >= SCALE_FLOOR * top {
                 num += l.camera_dn_per_s * t;
                 den += l.camera_dn_per_s * l.camera_dn_per_s;
                 ratios.push(t / l.camera_dn_per_s);

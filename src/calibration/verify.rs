@@ -27,6 +27,7 @@ use serde::{Deserialize, Serialize};
 use super::checkpoint::Checkpoint;
 use super::config::CalibrateConfig;
 use super::mismatch::CameraSpectral;
+use super::radiometric::SCALE_FLOOR;
 use super::responsivity::CameraResponsivity;
 use super::{progress, read_meter, show_level, AutoExposure, Instruments, Rect};
 use crate::error::{Error, Result};
@@ -101,7 +102,16 @@ pub struct Patch {
     /// Allowed |error| (k = 2), %, for the camera and the meter.
     pub camera_threshold_percent: f64,
     pub meter_threshold_percent: Option<f64>,
+    /// The meter's reading counts in the verdict and the statistics: false
+    /// for a broadband reading below [`SCALE_FLOOR`] of the LUT's maximum,
+    /// where the white's F does not hold (shown, not judged).
+    #[serde(default = "judged_by_default")]
+    pub meter_judged: bool,
     pub exposure_s: f64,
+}
+
+fn judged_by_default() -> bool {
+    true
 }
 
 /// One drift-check level.
@@ -259,8 +269,10 @@ impl Session<'_, '_> {
             .collect()
     }
 
-    /// The meter's camera-effective radiance of what the screen shows now.
-    fn meter(&mut self, name: &str, level: u32) -> Result<Option<f64>> {
+    /// The meter's camera-effective radiance of what the screen shows now,
+    /// and whether it came through F (a broadband reading) rather than a
+    /// spectrum.
+    fn meter(&mut self, name: &str, level: u32) -> Result<Option<(f64, bool)>> {
         let Some(m) = read_meter(&mut self.inst.meter, name, level)? else {
             return Ok(None);
         };
@@ -269,8 +281,8 @@ impl Session<'_, '_> {
             &self.setup.spectral,
             self.setup.mismatch_factor,
         ) {
-            (Some(s), Some(c), _) => c.effective_radiance(s).map(Some),
-            (_, _, Some(f)) => Ok(Some(f * m.value)),
+            (Some(s), Some(c), _) => c.effective_radiance(s).map(|l| Some((l, false))),
+            (_, _, Some(f)) => Ok(Some((f * m.value, true))),
             _ => Err(Error::invalid(
                 "calibrate.mismatch_factor",
                 "verify needs F (or a spectroradiometer) to read the meter",
@@ -304,7 +316,15 @@ impl Session<'_, '_> {
                 error_percent: 100.0 * (radiance / target - 1.0),
             })
             .collect();
-        let meter = self.meter(name, level)?;
+        let reading = self.meter(name, level)?;
+        let meter = reading.map(|r| r.0);
+        // F holds for the spectrum it was computed from, the white; a dim
+        // patch's spectrum is the black leak's as much as the channels'
+        // (bluer on an LCD), so a broadband reading there is shown, not
+        // judged: the camera spots judge it in the camera's own band.
+        let judged = reading.is_some_and(|(_, broadband)| {
+            !broadband || target >= SCALE_FLOOR * self.setup.lut.max_radiance()
+        });
         let lut_u = self.setup.lut.uncertainty_k2_percent(target).unwrap_or(0.0);
         let r_u = self.setup.camera.responsivity.uncertainty_k2_percent;
         let override_u = self.setup.cfg.verify.max_error_percent;
@@ -320,6 +340,7 @@ impl Session<'_, '_> {
                 .meter_uncertainty_k2_percent
                 .map(|m| override_u.unwrap_or(lut_u.hypot(m)))
                 .or(override_u),
+            meter_judged: judged,
             exposure_s: r.frame.exposure_s,
         })
     }
@@ -439,7 +460,7 @@ impl VerifyReport {
                 cam_n += 1;
                 failures += usize::from(!(s.error_percent.abs() <= p.camera_threshold_percent));
             }
-            if let Some(e) = p.meter_error_percent {
+            if let Some(e) = p.meter_error_percent.filter(|_| p.meter_judged) {
                 max_error = max_error.max(e.abs());
                 meter_sum += e;
                 meter_n += 1;
@@ -490,6 +511,9 @@ pub fn summary(r: &VerifyReport) -> String {
             spots.join("  "),
             p.camera_threshold_percent,
             match (p.meter_error_percent, p.meter_threshold_percent) {
+                (Some(m), _) if !p.meter_judged => {
+                    format!("{m:+.3} % (not judged: broadband, below the white's F)")
+                }
                 (Some(m), Some(t)) => format!("{m:+.3} % (± {t:.2} %)"),
                 (Some(m), None) => format!("{m:+.3} % (no declared uncertainty)"),
                 _ => "-".into(),
@@ -553,18 +577,26 @@ pub fn plot(r: &VerifyReport, path: &Path) -> Result<()> {
     let cam_t = |p: &Patch| Some(p.camera_threshold_percent);
     camera.push(Series::line("± threshold (k = 2)", band(&cam_t, 1.0)).with_colour(grey));
     camera.push(Series::line("", band(&cam_t, -1.0)).with_colour(grey));
-    let met_t = |p: &Patch| p.meter_threshold_percent;
-    let meter = vec![
-        Series::line_points(
-            "meter",
-            r.patches
-                .iter()
-                .filter_map(|p| p.meter_error_percent.map(|e| (p.target, e)))
-                .collect(),
-        ),
+    let met_t = |p: &Patch| p.meter_threshold_percent.filter(|_| p.meter_judged);
+    let meter_points = |judged: bool| -> Vec<(f64, f64)> {
+        r.patches
+            .iter()
+            .filter(|p| p.meter_judged == judged)
+            .filter_map(|p| p.meter_error_percent.map(|e| (p.target, e)))
+            .collect()
+    };
+    let mut meter = vec![
+        Series::line_points("meter", meter_points(true)),
         Series::line("± threshold (k = 2)", band(&met_t, 1.0)).with_colour(grey),
         Series::line("", band(&met_t, -1.0)).with_colour(grey),
     ];
+    let unjudged = meter_points(false);
+    if !unjudged.is_empty() {
+        meter.push(
+            Series::line_points("meter, not judged (broadband, < 10 % of max)", unjudged)
+                .with_colour(plotters::style::RGBColor(230, 140, 0)),
+        );
+    }
     log_x_panels(
         path,
         &LogXPanels {
