@@ -125,6 +125,48 @@ impl CameraSpectral {
     }
 }
 
+/// Largest spacing of a screen spectrum's rows inside the camera's band,
+/// nm: an LCD's primaries are 20–40 nm wide, so a wider step interpolates
+/// straight across a peak.
+pub const MAX_SPECTRUM_STEP_NM: f64 = 20.0;
+
+/// Checks that a screen spectrum can give F for a camera band `band_nm`:
+/// no gap wider than [`MAX_SPECTRUM_STEP_NM`] inside the band, and it
+/// covers the band or ends where the screen has stopped emitting (its end
+/// value below 1 % of its peak). The error says what is wrong, in nm.
+pub fn check_screen_spectrum(s: &Spectrum, band_nm: [f64; 2]) -> Result<()> {
+    let peak = s.iter().fold(0.0f64, |m, p| m.max(p.1));
+    if s.len() < 2 || !(peak > 0.0) {
+        return Err(Error::Other(
+            "needs at least two rows and a positive value".into(),
+        ));
+    }
+    let [blo, bhi] = band_nm;
+    for w in s.windows(2) {
+        let (a, b) = (w[0].0, w[1].0);
+        if b - a > MAX_SPECTRUM_STEP_NM && b > blo && a < bhi {
+            return Err(Error::Other(format!(
+                "a gap of {:.1} nm between {a} and {b} nm, inside the camera's band {blo}–{bhi} nm (at most {MAX_SPECTRUM_STEP_NM} nm)",
+                b - a
+            )));
+        }
+    }
+    let (first, last) = (s[0], s[s.len() - 1]);
+    for (end, beyond, name) in [
+        (first, first.0 > blo, "starts"),
+        (last, last.0 < bhi, "ends"),
+    ] {
+        if beyond && end.1 > 0.01 * peak {
+            return Err(Error::Other(format!(
+                "{name} at {} nm at {:.1} % of its peak, inside the camera's band {blo}–{bhi} nm: extend it to where the screen stops emitting",
+                end.0,
+                100.0 * end.1 / peak
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// A `(nm, value)` spectrum from a [`Table`] (metres → nm).
 pub fn table_spectrum(t: &Table) -> Vec<(f64, f64)> {
     t.wavelengths
@@ -150,6 +192,35 @@ mod tests {
 
     /// A solar-shaped source: L_eff equals its band radiance (the first
     /// property of the convention).
+    #[test]
+    fn screen_spectrum_gaps_and_truncation_are_refused() {
+        let band = [450.0, 820.0];
+        let lcd: Vec<(f64, f64)> = (380..=780)
+            .step_by(5)
+            .map(|nm| (nm as f64, (-(((nm as f64) - 550.0) / 60.0).powi(2)).exp()))
+            .collect();
+        assert!(check_screen_spectrum(&lcd, band).is_ok());
+        // A 50 nm hole at the green peak.
+        let holed: Vec<_> = lcd
+            .iter()
+            .copied()
+            .filter(|p| p.0 <= 520.0 || p.0 >= 570.0)
+            .collect();
+        let e = check_screen_spectrum(&holed, band).unwrap_err().to_string();
+        assert!(e.contains("gap of 50.0 nm between 520 and 570"), "{e}");
+        // Cut at 600 nm where the screen still emits 37 % of its peak.
+        let cut: Vec<_> = lcd.iter().copied().filter(|p| p.0 <= 600.0).collect();
+        let e = check_screen_spectrum(&cut, band).unwrap_err().to_string();
+        assert!(e.contains("ends at 600 nm"), "{e}");
+        // A gap outside the band is harmless.
+        let uv_gap: Vec<_> = lcd
+            .iter()
+            .copied()
+            .filter(|p| p.0 <= 380.0 || p.0 >= 420.0)
+            .collect();
+        assert!(check_screen_spectrum(&uv_gap, band).is_ok());
+    }
+
     #[test]
     fn solar_shaped_source_gives_its_band_radiance() {
         let cam = flat_camera([450.0, 820.0]);

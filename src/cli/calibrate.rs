@@ -11,7 +11,7 @@ use anyhow::{bail, Context, Result};
 use optistim::calibration::checkpoint::{fingerprint, Checkpoint};
 use optistim::calibration::config::{calibrate_table, CalibrateConfig};
 use optistim::calibration::dark::DarkBank;
-use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
+use optistim::calibration::mismatch::{check_screen_spectrum, table_spectrum, CameraSpectral};
 use optistim::calibration::responsivity::CameraResponsivity;
 use optistim::calibration::{
     flat, focal, geometric, radiometric, sleep, verify, AutoExposure, Instruments,
@@ -268,8 +268,14 @@ fn run_radiometric(
         Some(p) => Some(Table::from_csv(p)?),
         None => None,
     };
+    let spectral = CameraSpectral::from_scene(&scene);
     let screen_spectrum = match &cfg.screen_spectrum {
-        Some(p) => Some(table_spectrum(&Table::from_csv(p)?)),
+        Some(p) => {
+            let s = table_spectrum(&Table::from_csv(p)?);
+            check_screen_spectrum(&s, spectral.band_nm)
+                .with_context(|| format!("{}: calibrate.screen_spectrum", p.display()))?;
+            Some(s)
+        }
         None => None,
     };
     let mut power = |on: bool| {
@@ -282,7 +288,7 @@ fn run_radiometric(
     let mut setup = radiometric::Setup {
         cfg,
         bits: fac.drive.bits,
-        spectral: Some(CameraSpectral::from_scene(&scene)),
+        spectral: Some(spectral),
         meter_response,
         screen_spectrum,
         screen_power: Some(&mut power),
