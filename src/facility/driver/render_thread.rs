@@ -240,7 +240,10 @@ impl RenderThread {
                 .map(|c| c.describe());
             let roi = shown.and_then(|st| self.models[rung].render(&self.scene, &st));
             let render_end = Instant::now();
-            let render_over_lime = shown.and_then(|st| self.models[rung].render_over_lime(&st));
+            // Nothing of the body shown: nothing to compare with LIME.
+            let render_over_lime = shown
+                .filter(|_| out_of_field.is_none())
+                .and_then(|st| self.models[rung].render_over_lime(&st));
             let fidelity =
                 self.account(choice, shown.as_ref(), &mut area, render_end - render_start);
             let stats = self.convert(rung, roi, frame, &mut buffer, &mut warned_peak)?;
