@@ -1,0 +1,366 @@
+//! Point spread functions integrated over each pixel, and their
+//! convolution with an image.
+//!
+//! A kernel holds, per pixel offset, the fraction of a point source's
+//! power that lands in that pixel when the source sits at a pixel centre:
+//! the PSF integrated over the pixel's square (by Gauss–Legendre quadrature
+//! for the Airy pattern, in closed form for the Gaussian). It is truncated
+//! where the enclosed energy reaches [`ENCLOSED`] and renormalised, so a
+//! convolution conserves the image's power (except what leaves the frame).
+
+use rayon::prelude::*;
+use rustfft::{num_complex::Complex, FftPlanner};
+
+use crate::error::{Error, Result};
+
+/// Energy a kernel encloses before it is cut and renormalised.
+pub const ENCLOSED: f64 = 0.995;
+/// Largest kernel half-width, px (a 257 × 257 kernel).
+pub const MAX_HALF_WIDTH: usize = 128;
+
+/// A point spread function.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Psf {
+    /// Circular Gaussian of standard deviation `sigma_px` pixels.
+    Gaussian { sigma_px: f64 },
+    /// Diffraction of a circular aperture of f-number `f_number` at
+    /// wavelength `wavelength_m`, on pixels of pitch `pitch_m`.
+    Airy {
+        f_number: f64,
+        wavelength_m: f64,
+        pitch_m: f64,
+    },
+}
+
+/// A normalised, pixel-integrated kernel of odd side `2 half + 1`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Kernel {
+    pub half: usize,
+    /// Row-major weights, summing to 1.
+    pub weights: Vec<f64>,
+}
+
+impl Psf {
+    /// Range-checks the parameters (`key` names them in errors).
+    pub fn validate(&self, key: &str) -> Result<()> {
+        let ok = |v: f64, lo: f64, hi: f64| v.is_finite() && v > lo && v <= hi;
+        match *self {
+            Psf::Gaussian { sigma_px } if !ok(sigma_px, 0.0, 32.0) => Err(Error::invalid(
+                key,
+                format!("sigma_px {sigma_px} is not in (0, 32] px"),
+            )),
+            Psf::Airy {
+                f_number,
+                wavelength_m,
+                pitch_m,
+            } if !(ok(f_number, 0.0, 1e3)
+                && ok(wavelength_m, 1e-8, 1e-4)
+                && ok(pitch_m, 1e-7, 1e-3)) =>
+            {
+                Err(Error::invalid(
+                    key,
+                    format!(
+                        "f_number {f_number}, wavelength {wavelength_m} m, pitch {pitch_m} m: \
+                         need f-number in (0, 1000], wavelength in (10 nm, 100 µm], pitch in (0.1 µm, 1 mm]"
+                    ),
+                ))
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The fraction of a point source's power within radius `r_px` of its
+    /// centre (the continuous PSF, closed form).
+    pub fn encircled_energy(&self, r_px: f64) -> f64 {
+        match *self {
+            Psf::Gaussian { sigma_px } => 1.0 - (-0.5 * (r_px / sigma_px).powi(2)).exp(),
+            Psf::Airy { .. } => {
+                let x = std::f64::consts::PI * r_px / self.airy_scale_px();
+                1.0 - libm::j0(x).powi(2) - libm::j1(x).powi(2)
+            }
+        }
+    }
+
+    /// λN in pixels: the Airy pattern's radial unit.
+    fn airy_scale_px(&self) -> f64 {
+        match *self {
+            Psf::Airy {
+                f_number,
+                wavelength_m,
+                pitch_m,
+            } => wavelength_m * f_number / pitch_m,
+            Psf::Gaussian { .. } => f64::NAN,
+        }
+    }
+
+    /// Half-width (px) of the kernel: the radius enclosing [`ENCLOSED`],
+    /// plus one pixel for the pixel's own extent.
+    fn half_width(&self) -> Result<usize> {
+        let (mut lo, mut hi) = (0.0, 1.0);
+        while self.encircled_energy(hi) < ENCLOSED {
+            hi *= 2.0;
+            if hi > MAX_HALF_WIDTH as f64 {
+                return Err(Error::invalid(
+                    "camera.psf",
+                    format!(
+                        "the PSF is wider than {MAX_HALF_WIDTH} px at {ENCLOSED} of its energy"
+                    ),
+                ));
+            }
+        }
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if self.encircled_energy(mid) < ENCLOSED {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        Ok(hi.ceil() as usize + 1)
+    }
+
+    /// The pixel-integrated kernel.
+    pub fn kernel(&self) -> Result<Kernel> {
+        self.validate("camera.psf")?;
+        let half = self.half_width()?;
+        let n = 2 * half + 1;
+        let mut weights: Vec<f64> = (0..n * n)
+            .into_par_iter()
+            .map(|k| {
+                let (i, j) = ((k % n) as f64 - half as f64, (k / n) as f64 - half as f64);
+                self.pixel_integral(i, j)
+            })
+            .collect();
+        let sum: f64 = weights.iter().sum();
+        weights.iter_mut().for_each(|w| *w /= sum);
+        Ok(Kernel { half, weights })
+    }
+
+    /// The PSF integrated over the pixel square centred at offset (i, j).
+    fn pixel_integral(&self, i: f64, j: f64) -> f64 {
+        match *self {
+            Psf::Gaussian { sigma_px } => {
+                let cdf = |x: f64| 0.5 * libm::erfc(-x / (sigma_px * std::f64::consts::SQRT_2));
+                let span = |c: f64| cdf(c + 0.5) - cdf(c - 0.5);
+                span(i) * span(j)
+            }
+            Psf::Airy { .. } => {
+                let scale = self.airy_scale_px();
+                // Intensity normalised so that it integrates to 1 over the
+                // plane: I(r) = π/(4 s²) · [2 J1(x)/x]², x = π r / s.
+                let norm = std::f64::consts::PI / (4.0 * scale * scale);
+                let intensity = |x: f64, y: f64| {
+                    let q = std::f64::consts::PI * (x * x + y * y).sqrt() / scale;
+                    let a = if q < 1e-8 { 1.0 } else { 2.0 * libm::j1(q) / q };
+                    norm * a * a
+                };
+                gauss_legendre_square(i, j, &intensity)
+            }
+        }
+    }
+}
+
+/// ∫∫ f over the unit square centred at (i, j): 8 × 8 Gauss–Legendre
+/// points on each of 4 × 4 sub-squares (the Airy rings are a pixel or
+/// more apart at the f-numbers of navigation cameras).
+fn gauss_legendre_square(i: f64, j: f64, f: &dyn Fn(f64, f64) -> f64) -> f64 {
+    const X: [f64; 4] = [
+        0.183_434_642_495_65,
+        0.525_532_409_916_329,
+        0.796_666_477_413_627,
+        0.960_289_856_497_536,
+    ];
+    const W: [f64; 4] = [
+        0.362_683_783_378_362,
+        0.313_706_645_877_887,
+        0.222_381_034_453_374,
+        0.101_228_536_290_376,
+    ];
+    let nodes: Vec<(f64, f64)> = X
+        .iter()
+        .zip(W)
+        .flat_map(|(&x, w)| [(-x, w), (x, w)])
+        .collect();
+    let sub = 4;
+    let h = 1.0 / sub as f64;
+    let mut sum = 0.0;
+    for sy in 0..sub {
+        for sx in 0..sub {
+            let (cx, cy) = (
+                i - 0.5 + (sx as f64 + 0.5) * h,
+                j - 0.5 + (sy as f64 + 0.5) * h,
+            );
+            for &(u, wu) in &nodes {
+                for &(v, wv) in &nodes {
+                    sum += wu * wv * f(cx + 0.5 * h * u, cy + 0.5 * h * v);
+                }
+            }
+        }
+    }
+    sum * 0.25 * h * h
+}
+
+impl Kernel {
+    /// `image` (`width` × `height`, row-major) convolved with the kernel;
+    /// light beyond the frame is lost, none comes in from outside it.
+    /// Small kernels directly, large ones (an Airy pattern's rings reach
+    /// tens of pixels) by FFT.
+    pub fn convolve(&self, image: &[f32], width: usize, height: usize) -> Vec<f32> {
+        if 2 * self.half < DIRECT_MAX_SIDE {
+            self.convolve_direct(image, width, height)
+        } else {
+            self.convolve_fft(image, width, height)
+        }
+    }
+
+    fn convolve_direct(&self, image: &[f32], width: usize, height: usize) -> Vec<f32> {
+        let (h, n) = (self.half as isize, 2 * self.half + 1);
+        let mut out = vec![0.0f32; image.len()];
+        out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+            for (x, o) in row.iter_mut().enumerate() {
+                let mut acc = 0.0f64;
+                for ky in 0..n {
+                    let sy = y as isize + h - ky as isize;
+                    if sy < 0 || sy >= height as isize {
+                        continue;
+                    }
+                    let src = &image[sy as usize * width..][..width];
+                    let krow = &self.weights[ky * n..][..n];
+                    for (kx, &w) in krow.iter().enumerate() {
+                        let sx = x as isize + h - kx as isize;
+                        if sx >= 0 && sx < width as isize {
+                            acc += w * src[sx as usize] as f64;
+                        }
+                    }
+                }
+                *o = acc as f32;
+            }
+        });
+        out
+    }
+
+    /// Linear convolution by FFT on a grid padded by the kernel's
+    /// half-width (so nothing wraps around into the frame).
+    fn convolve_fft(&self, image: &[f32], width: usize, height: usize) -> Vec<f32> {
+        let (pw, ph) = (width + 2 * self.half, height + 2 * self.half);
+        let mut img = vec![Complex::new(0.0, 0.0); pw * ph];
+        for (y, row) in image.chunks(width).enumerate() {
+            for (x, &v) in row.iter().enumerate() {
+                img[y * pw + x] = Complex::new(v as f64, 0.0);
+            }
+        }
+        // The kernel's centre at (0, 0), its negative offsets wrapped.
+        let n = 2 * self.half + 1;
+        let mut ker = vec![Complex::new(0.0, 0.0); pw * ph];
+        for ky in 0..n {
+            for kx in 0..n {
+                let dx = (kx + pw - self.half) % pw;
+                let dy = (ky + ph - self.half) % ph;
+                ker[dy * pw + dx] = Complex::new(self.weights[ky * n + kx], 0.0);
+            }
+        }
+        let mut planner = FftPlanner::new();
+        fft_2d(&mut img, pw, ph, &mut planner, false);
+        fft_2d(&mut ker, pw, ph, &mut planner, false);
+        img.par_iter_mut().zip(&ker).for_each(|(a, b)| *a *= b);
+        fft_2d(&mut img, pw, ph, &mut planner, true);
+        let scale = 1.0 / (pw * ph) as f64;
+        let mut out = vec![0.0f32; width * height];
+        for (y, row) in out.chunks_mut(width).enumerate() {
+            for (x, o) in row.iter_mut().enumerate() {
+                *o = (img[y * pw + x].re * scale) as f32;
+            }
+        }
+        out
+    }
+}
+
+/// Kernels up to this side are applied directly.
+const DIRECT_MAX_SIDE: usize = 15;
+
+/// In-place 2-D FFT (unnormalised) of a `w × h` row-major grid: rows, then
+/// columns through a transpose.
+fn fft_2d(
+    data: &mut [Complex<f64>],
+    w: usize,
+    h: usize,
+    planner: &mut FftPlanner<f64>,
+    inverse: bool,
+) {
+    let plan = |p: &mut FftPlanner<f64>, n: usize| {
+        if inverse {
+            p.plan_fft_inverse(n)
+        } else {
+            p.plan_fft_forward(n)
+        }
+    };
+    let rows = plan(planner, w);
+    data.par_chunks_mut(w).for_each(|r| rows.process(r));
+    let mut t = vec![Complex::new(0.0, 0.0); w * h];
+    for y in 0..h {
+        for x in 0..w {
+            t[x * h + y] = data[y * w + x];
+        }
+    }
+    let cols = plan(planner, h);
+    t.par_chunks_mut(h).for_each(|c| cols.process(c));
+    for x in 0..w {
+        for y in 0..h {
+            data[y * w + x] = t[x * h + y];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kernels_sum_to_one_and_are_symmetric() {
+        for psf in [
+            Psf::Gaussian { sigma_px: 0.7 },
+            Psf::Airy {
+                f_number: 4.0,
+                wavelength_m: 650e-9,
+                pitch_m: 5.5e-6,
+            },
+        ] {
+            let k = psf.kernel().unwrap();
+            let n = 2 * k.half + 1;
+            assert!((k.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+            for y in 0..n {
+                for x in 0..n {
+                    let (a, b) = (k.weights[y * n + x], k.weights[x * n + (n - 1 - y)]);
+                    assert!((a - b).abs() < 1e-12 * k.weights[k.half * n + k.half]);
+                }
+            }
+        }
+    }
+
+    /// FFT and direct convolution agree (an asymmetric image, a kernel
+    /// made wide enough for the FFT path).
+    #[test]
+    fn fft_and_direct_convolution_agree() {
+        let k = Psf::Gaussian { sigma_px: 3.0 }.kernel().unwrap();
+        assert!(2 * k.half + 1 > DIRECT_MAX_SIDE);
+        let (w, h) = (37, 23);
+        let img: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 101) as f32).collect();
+        let (a, b) = (k.convolve_direct(&img, w, h), k.convolve_fft(&img, w, h));
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() < 1e-3, "{x} vs {y}");
+        }
+    }
+
+    #[test]
+    fn bad_parameters_are_refused() {
+        assert!(Psf::Gaussian { sigma_px: f64::NAN }.kernel().is_err());
+        assert!(Psf::Gaussian { sigma_px: 0.0 }.kernel().is_err());
+        let wide = Psf::Airy {
+            f_number: 500.0,
+            wavelength_m: 1e-5,
+            pitch_m: 1e-6,
+        };
+        let e = wide.kernel().unwrap_err().to_string();
+        assert!(e.contains("camera.psf"), "{e}");
+    }
+}
