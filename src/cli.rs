@@ -41,6 +41,7 @@ pub fn render(
     scene_path: &Path,
     out: &Path,
     caps_per_pixel: Option<f64>,
+    max_pixel_error: Option<f64>,
     overwrite: bool,
 ) -> Result<()> {
     let files: Vec<_> = RENDER_FILES.iter().map(|f| out.join(f)).collect();
@@ -58,9 +59,11 @@ pub fn render(
             field.describe()
         );
     }
+    let plan = plan_settings(&mut scene, scene_path, max_pixel_error)?;
     let mut renderer = Renderer::new(scene.camera.pinhole.clone());
     let pixels = PixelGeometry::new(&renderer);
-    let images = render_scene(&scene, &mut renderer, &pixels)?;
+    let mut images = render_scene(&scene, &mut renderer, &pixels)?;
+    images.summary.plan = plan;
     let pin = &scene.camera.pinhole;
     output::write_render(out, pin.width, pin.height, &images)
         .with_context(|| format!("writing {}", out.display()))?;
@@ -92,6 +95,32 @@ pub fn render(
         );
     }
     Ok(())
+}
+
+/// With a per-pixel error target (`--max-pixel-error`, else the scene's
+/// `[render] max_pixel_error`): the planner's settings put in `scene`, and
+/// its report.
+fn plan_settings(
+    scene: &mut Scene,
+    scene_path: &Path,
+    flag: Option<f64>,
+) -> Result<Option<optistim::planner::Plan>> {
+    use optistim::planner;
+    let Some((target, source)) = planner::target(flag, scene) else {
+        return Ok(None);
+    };
+    let plan = planner::Planner::new(scene)
+        .plan(target, source)
+        .with_context(|| format!("{}", scene_path.display()))?;
+    tracing::info!(
+        "planned for interior p99 <= {target:e}: {} (measured {:.2e}, flux {:.1e}; planning {:.0} ms)",
+        plan.label,
+        plan.predicted_pixel_error,
+        plan.predicted_flux_error,
+        plan.planning_ms
+    );
+    scene.render = plan.settings.clone();
+    Ok(Some(plan))
 }
 
 /// Calibration files given on the command line, in place of the facility
