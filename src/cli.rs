@@ -222,7 +222,8 @@ pub struct RunArgs {
     /// Add this run to an existing `--log` (runs are told apart by their id).
     #[arg(long)]
     pub append: bool,
-    /// Replace an existing `--summary`.
+    /// Replace an existing `--summary`, and the earlier frames
+    /// (`frame_*.png`) in `--dump` or `--captures` (removed first).
     #[arg(long)]
     pub overwrite: bool,
     /// Write the last frames shown on the simulated display as PNG here.
@@ -352,7 +353,8 @@ fn print_verdict(summary: &optistim::facility::log::Summary) {
 /// The run's frame log and summary: as given, each refused now (not after
 /// a campaign's last frame) if it would extend or replace an earlier
 /// result without `--append` / `--overwrite`; those not given go into a
-/// new directory of their own under `--runs-dir`.
+/// new directory of their own under `--runs-dir`. Earlier frames in
+/// `--dump` or `--captures` are refused likewise.
 fn run_outputs(args: &RunArgs) -> Result<(std::path::PathBuf, std::path::PathBuf)> {
     use optistim::outfile;
     if let Some(log) = &args.log {
@@ -368,6 +370,12 @@ fn run_outputs(args: &RunArgs) -> Result<(std::path::PathBuf, std::path::PathBuf
     if let Some(summary) = &args.summary {
         outfile::check_replaceable(summary)?;
         outfile::check_no_earlier(std::slice::from_ref(summary), args.overwrite)?;
+    }
+    if let Some(dir) = &args.dump {
+        outfile::claim_frames_dir(dir, "frame_", ".png", args.overwrite)?;
+    }
+    if args.display == "sim-facility" {
+        outfile::claim_frames_dir(&args.captures, "frame_", ".png", args.overwrite)?;
     }
     let run_dir = match (&args.log, &args.summary) {
         (Some(_), Some(_)) => None,
@@ -514,15 +522,22 @@ fn run_on_display(
     })
 }
 
-/// `optistim validate amie`.
+/// What `optistim validate amie` writes into its `--out` directory.
+const VALIDATE_FILES: [&str; 3] = ["comparison.png", "profile.png", "report.json"];
+
+/// `optistim validate amie`; refuses an `out` holding an earlier
+/// validation unless `overwrite`.
 pub fn validate_amie(
     img: &Path,
     model: &str,
     out: &Path,
     data: &Path,
     kernels: Option<&Path>,
+    overwrite: bool,
 ) -> Result<()> {
     use optistim::validate::compare;
+    let files: Vec<_> = VALIDATE_FILES.iter().map(|f| out.join(f)).collect();
+    optistim::outfile::check_no_earlier(&files, overwrite)?;
     let mut options = compare::ValidationOptions::new(data);
     if let Some(dir) = kernels {
         print_ephemeris_difference(img, dir)?;

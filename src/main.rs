@@ -141,6 +141,9 @@ enum ValidateCommand {
         /// ephemerides; also prints how far the two differ.
         #[arg(long)]
         kernels: Option<PathBuf>,
+        /// Replace an earlier validation in `--out`.
+        #[arg(long)]
+        overwrite: bool,
     },
 }
 
@@ -210,7 +213,8 @@ fn main() -> ExitCode {
             out,
             data,
             kernels,
-        }) => cli::validate_amie(&img, &model, &out, &data, kernels.as_deref()),
+            overwrite,
+        }) => cli::validate_amie(&img, &model, &out, &data, kernels.as_deref(), overwrite),
     };
     finish(result.map(|()| ExitCode::SUCCESS))
 }
