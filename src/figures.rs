@@ -400,6 +400,10 @@ pub struct LogXPanels {
 /// legend's band.
 const LEGEND_HEADROOM: f64 = 0.5;
 
+/// Fraction of the x axis's log span added right of the data when points
+/// carry labels.
+const POINT_LABEL_ROOM: f64 = 0.15;
+
 /// Writes side-by-side log-x panels as PNG.
 pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
     let path = path.as_ref();
@@ -417,6 +421,17 @@ pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
         (floor_decade(x0), x1)
     } else {
         (x0, x1)
+    };
+    // Room right of the last point for its label.
+    let labelled = fig
+        .panels
+        .iter()
+        .flat_map(|p| p.series.iter())
+        .any(|s| !s.point_labels.is_empty());
+    let x = if labelled {
+        (x.0, x.1 * (x.1 / x.0).powf(POINT_LABEL_ROOM))
+    } else {
+        x
     };
     draw_png(path, fig.size, |root| {
         let body = root
@@ -463,6 +478,9 @@ fn log_x_panel_on(
         .flat_map(|s| finite_points(s, panel.log_y))
         .map(|p| p.1);
     let (y0, y1) = span(ys, panel.log_y);
+    // The axis starts at a power of ten (see `log_x_panels`): the headroom
+    // below is a share of the whole axis, not of the data's span.
+    let y0 = if panel.log_y { floor_decade(y0) } else { y0 };
     // Headroom above the data (a third of the panel) for the legend, so it
     // never covers a point.
     let y1 = if panel.log_y {
@@ -475,8 +493,6 @@ fn log_x_panel_on(
     let none: Option<&str> = None;
     let legend = SeriesLabelPosition::UpperRight;
     if panel.log_y {
-        // Labels start at the first power of ten (see `log_x_panels`).
-        let y0 = floor_decade(y0);
         let y_decades = (y1 / y0).log10();
         let yf = |v: &f64| tick_log_sparse(*v, y_decades);
         draw_panel!(
