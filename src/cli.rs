@@ -41,6 +41,7 @@ pub fn render(
     scene_path: &Path,
     out: &Path,
     caps_per_pixel: Option<f64>,
+    max_pixel_error: Option<f64>,
     overwrite: bool,
 ) -> Result<()> {
     let files: Vec<_> = RENDER_FILES.iter().map(|f| out.join(f)).collect();
@@ -58,9 +59,11 @@ pub fn render(
             field.describe()
         );
     }
+    let plan = plan_settings(&mut scene, scene_path, max_pixel_error)?;
     let mut renderer = Renderer::new(scene.camera.pinhole.clone());
     let pixels = PixelGeometry::new(&renderer);
-    let images = render_scene(&scene, &mut renderer, &pixels)?;
+    let mut images = render_scene(&scene, &mut renderer, &pixels)?;
+    images.summary.plan = plan;
     let pin = &scene.camera.pinhole;
     output::write_render(out, pin.width, pin.height, &images)
         .with_context(|| format!("writing {}", out.display()))?;
@@ -92,6 +95,32 @@ pub fn render(
         );
     }
     Ok(())
+}
+
+/// With a per-pixel error target (`--max-pixel-error`, else the scene's
+/// `[render] max_pixel_error`): the planner's settings put in `scene`, and
+/// its report.
+fn plan_settings(
+    scene: &mut Scene,
+    scene_path: &Path,
+    flag: Option<f64>,
+) -> Result<Option<optistim::planner::Plan>> {
+    use optistim::planner;
+    let Some((target, source)) = planner::target(flag, scene) else {
+        return Ok(None);
+    };
+    let plan = planner::Planner::new(scene)
+        .plan(target, source)
+        .with_context(|| format!("{}", scene_path.display()))?;
+    tracing::info!(
+        "planned for interior p99 <= {target:e}: {} (measured {:.2e}, flux {:.1e}; planning {:.0} ms)",
+        plan.label,
+        plan.predicted_pixel_error,
+        plan.predicted_flux_error,
+        plan.planning_ms
+    );
+    scene.render = plan.settings.clone();
+    Ok(Some(plan))
 }
 
 /// Calibration files given on the command line, in place of the facility
@@ -193,7 +222,8 @@ pub struct RunArgs {
     /// Add this run to an existing `--log` (runs are told apart by their id).
     #[arg(long)]
     pub append: bool,
-    /// Replace an existing `--summary`.
+    /// Replace an existing `--summary`, and the earlier frames
+    /// (`frame_*.png`) in `--dump` or `--captures` (removed first).
     #[arg(long)]
     pub overwrite: bool,
     /// Write the last frames shown on the simulated display as PNG here.
@@ -326,7 +356,8 @@ fn print_verdict(summary: &optistim::facility::log::Summary) {
 /// The run's frame log and summary: as given, each refused now (not after
 /// a campaign's last frame) if it would extend or replace an earlier
 /// result without `--append` / `--overwrite`; those not given go into a
-/// new directory of their own under `--runs-dir`.
+/// new directory of their own under `--runs-dir`. Earlier frames in
+/// `--dump` or `--captures` are refused likewise.
 fn run_outputs(args: &RunArgs) -> Result<(std::path::PathBuf, std::path::PathBuf)> {
     use optistim::outfile;
     if let Some(log) = &args.log {
@@ -342,6 +373,12 @@ fn run_outputs(args: &RunArgs) -> Result<(std::path::PathBuf, std::path::PathBuf
     if let Some(summary) = &args.summary {
         outfile::check_replaceable(summary)?;
         outfile::check_no_earlier(std::slice::from_ref(summary), args.overwrite)?;
+    }
+    if let Some(dir) = &args.dump {
+        outfile::claim_frames_dir(dir, "frame_", ".png", args.overwrite)?;
+    }
+    if args.display == "sim-facility" {
+        outfile::claim_frames_dir(&args.captures, "frame_", ".png", args.overwrite)?;
     }
     let run_dir = match (&args.log, &args.summary) {
         (Some(_), Some(_)) => None,
@@ -488,15 +525,22 @@ fn run_on_display(
     })
 }
 
-/// `optistim validate amie`.
+/// What `optistim validate amie` writes into its `--out` directory.
+const VALIDATE_FILES: [&str; 3] = ["comparison.png", "profile.png", "report.json"];
+
+/// `optistim validate amie`; refuses an `out` holding an earlier
+/// validation unless `overwrite`.
 pub fn validate_amie(
     img: &Path,
     model: &str,
     out: &Path,
     data: &Path,
     kernels: Option<&Path>,
+    overwrite: bool,
 ) -> Result<()> {
     use optistim::validate::compare;
+    let files: Vec<_> = VALIDATE_FILES.iter().map(|f| out.join(f)).collect();
+    optistim::outfile::check_no_earlier(&files, overwrite)?;
     let mut options = compare::ValidationOptions::new(data);
     if let Some(dir) = kernels {
         print_ephemeris_difference(img, dir)?;

@@ -56,6 +56,8 @@ pub struct Series {
     pub mark: Mark,
     /// Colour; `None`: the next colour of [`PALETTE`].
     pub colour: Option<RGBColor>,
+    /// A label beside each point (empty: none), in the series' colour.
+    pub point_labels: Vec<String>,
 }
 
 impl Series {
@@ -65,6 +67,7 @@ impl Series {
             points,
             mark: Mark::Line,
             colour: None,
+            point_labels: Vec::new(),
         }
     }
 
@@ -74,6 +77,7 @@ impl Series {
             points,
             mark: Mark::Points,
             colour: None,
+            point_labels: Vec::new(),
         }
     }
 
@@ -84,6 +88,15 @@ impl Series {
             points,
             mark: Mark::LinePoints,
             colour: None,
+            point_labels: Vec::new(),
+        }
+    }
+
+    /// The same series with `labels` beside its points, in order.
+    pub fn with_point_labels(self, labels: Vec<String>) -> Series {
+        Series {
+            point_labels: labels,
+            ..self
         }
     }
 
@@ -125,8 +138,13 @@ fn finite_points(s: &Series, log_y: bool) -> Vec<(f64, f64)> {
     s.points
         .iter()
         .copied()
-        .filter(|(x, y)| x.is_finite() && y.is_finite() && (!log_y || *y > 0.0))
+        .filter(|&p| finite_points_keep(p, log_y))
         .collect()
+}
+
+/// Whether point `p` can be drawn (finite, and y > 0 on a log axis).
+fn finite_points_keep((x, y): (f64, f64), log_y: bool) -> bool {
+    x.is_finite() && y.is_finite() && (!log_y || y > 0.0)
 }
 
 /// `(min, max)` of `values`, widened when empty or degenerate.
@@ -182,6 +200,23 @@ fn tick_log(v: f64) -> String {
     }
     let d = (-v.log10().floor()).clamp(0.0, 3.0) as usize;
     format!("{v:.d$}")
+}
+
+/// Tick label of `v` on a log axis spanning `decades`: powers of ten
+/// only, and 2 and 5 × them when the axis spans under three decades;
+/// the other minor ticks keep their grid line but no label, so labels
+/// never crowd where a decade's ticks close up.
+fn tick_log_sparse(v: f64, decades: f64) -> String {
+    if !(v > 0.0) {
+        return String::new();
+    }
+    let mantissa = v / 10f64.powf(v.log10().floor());
+    let near = |m: f64| (mantissa - m).abs() < 1e-6 * m || (mantissa - 10.0 * m).abs() < 1e-5 * m;
+    if near(1.0) || (decades < 3.0 && (near(2.0) || near(5.0))) {
+        tick_log(v)
+    } else {
+        String::new()
+    }
 }
 
 /// Draws one panel on `area`. A macro, because plotters' linear and log
@@ -248,6 +283,22 @@ macro_rules! draw_panel {
                 anno.label(s.label.as_str()).legend(move |(x, y)| {
                     PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(3))
                 });
+            }
+            if !s.point_labels.is_empty() {
+                let font = (FONT_NAME, 13).into_font().color(&colour);
+                // Above the points for even series, below for odd: two
+                // curves at one height keep their labels apart.
+                let dy = if i % 2 == 0 { -17 } else { 5 };
+                let labelled_points = s
+                    .points
+                    .iter()
+                    .zip(&s.point_labels)
+                    .filter(|(p, _)| finite_points_keep(**p, $panel.log_y));
+                chart
+                    .draw_series(labelled_points.map(|(&p, l)| {
+                        EmptyElement::at(p) + Text::new(l.clone(), (5, dy), font.clone())
+                    }))
+                    .map_err(|e| $err(e.to_string()))?;
             }
         }
         if labelled {
@@ -349,6 +400,10 @@ pub struct LogXPanels {
 /// legend's band.
 const LEGEND_HEADROOM: f64 = 0.5;
 
+/// Fraction of the x axis's log span added right of the data when points
+/// carry labels.
+const POINT_LABEL_ROOM: f64 = 0.15;
+
 /// Writes side-by-side log-x panels as PNG.
 pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
     let path = path.as_ref();
@@ -366,6 +421,17 @@ pub fn log_x_panels(path: impl AsRef<Path>, fig: &LogXPanels) -> Result<()> {
         (floor_decade(x0), x1)
     } else {
         (x0, x1)
+    };
+    // Room right of the last point for its label.
+    let labelled = fig
+        .panels
+        .iter()
+        .flat_map(|p| p.series.iter())
+        .any(|s| !s.point_labels.is_empty());
+    let x = if labelled {
+        (x.0, x.1 * (x.1 / x.0).powf(POINT_LABEL_ROOM))
+    } else {
+        x
     };
     draw_png(path, fig.size, |root| {
         let body = root
@@ -412,6 +478,9 @@ fn log_x_panel_on(
         .flat_map(|s| finite_points(s, panel.log_y))
         .map(|p| p.1);
     let (y0, y1) = span(ys, panel.log_y);
+    // The axis starts at a power of ten (see `log_x_panels`): the headroom
+    // below is a share of the whole axis, not of the data's span.
+    let y0 = if panel.log_y { floor_decade(y0) } else { y0 };
     // Headroom above the data (a third of the panel) for the legend, so it
     // never covers a point.
     let y1 = if panel.log_y {
@@ -419,13 +488,13 @@ fn log_x_panel_on(
     } else {
         y1 + LEGEND_HEADROOM * (y1 - y0)
     };
-    let xf = |v: &f64| tick_log(*v);
+    let x_decades = (x.1 / x.0).log10();
+    let xf = |v: &f64| tick_log_sparse(*v, x_decades);
     let none: Option<&str> = None;
     let legend = SeriesLabelPosition::UpperRight;
     if panel.log_y {
-        // Labels start at the first power of ten (see `log_x_panels`).
-        let y0 = floor_decade(y0);
-        let yf = |v: &f64| tick_log(*v);
+        let y_decades = (y1 / y0).log10();
+        let yf = |v: &f64| tick_log_sparse(*v, y_decades);
         draw_panel!(
             area,
             none,
@@ -1081,6 +1150,24 @@ pub fn quiver(path: impl AsRef<Path>, q: &Quiver) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn log_ticks_label_decades_and_two_five_on_short_axes_only() {
+        for (v, decades, expected) in [
+            (10.0, 5.0, "10"),
+            (100.0, 5.0, "100"),
+            (1e-4, 5.0, "1e-4"),
+            (20.0, 5.0, ""),
+            (20.0, 2.0, "20"),
+            (50.0, 2.0, "50"),
+            (500.0, 2.9, "500"),
+            (30.0, 2.0, ""),
+            (90.0, 1.0, ""),
+            (0.0, 1.0, ""),
+        ] {
+            assert_eq!(tick_log_sparse(v, decades), expected, "{v} over {decades}");
+        }
+    }
 
     #[test]
     fn viridis_ends_and_clamps() {

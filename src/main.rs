@@ -32,6 +32,11 @@ enum Command {
         /// Override the caps per pixel of the scene file.
         #[arg(long)]
         caps_per_pixel: Option<f64>,
+        /// Per-pixel error target (interior p99 against a converged
+        /// render, in (0, 1]; replaces `[render] max_pixel_error`): render
+        /// with the cheapest settings that meet it (summary.json's `plan`).
+        #[arg(long)]
+        max_pixel_error: Option<f64>,
         /// Replace an earlier render in `--out`.
         #[arg(long)]
         overwrite: bool,
@@ -75,6 +80,11 @@ enum Command {
         /// The reference's caps per pixel (default: 4× the densest timed).
         #[arg(long)]
         reference_density: Option<f64>,
+        /// Per-pixel error target (interior p99, in (0, 1]; else the
+        /// scene's `[render] max_pixel_error`): at each phase time only the
+        /// cheapest settings that meet it, as the planner chose them.
+        #[arg(long)]
+        max_pixel_error: Option<f64>,
         /// Repetitions per point (median reported).
         #[arg(long, default_value_t = 30)]
         repeats: usize,
@@ -131,6 +141,9 @@ enum ValidateCommand {
         /// ephemerides; also prints how far the two differ.
         #[arg(long)]
         kernels: Option<PathBuf>,
+        /// Replace an earlier validation in `--out`.
+        #[arg(long)]
+        overwrite: bool,
     },
 }
 
@@ -154,8 +167,9 @@ fn main() -> ExitCode {
             scene,
             out,
             caps_per_pixel,
+            max_pixel_error,
             overwrite,
-        } => cli::render(&scene, &out, caps_per_pixel, overwrite),
+        } => cli::render(&scene, &out, caps_per_pixel, max_pixel_error, overwrite),
         Command::Bench {
             scene,
             phases,
@@ -167,6 +181,7 @@ fn main() -> ExitCode {
             pixel_tolerance,
             map_tolerance,
             reference_density,
+            max_pixel_error,
             repeats,
             json,
             plot,
@@ -184,6 +199,7 @@ fn main() -> ExitCode {
                 pixel_tolerances: pixel_tolerance,
                 map_tolerances: map_tolerance,
                 reference_density,
+                max_pixel_error,
             },
             repeats,
             json.as_deref(),
@@ -197,7 +213,8 @@ fn main() -> ExitCode {
             out,
             data,
             kernels,
-        }) => cli::validate_amie(&img, &model, &out, &data, kernels.as_deref()),
+            overwrite,
+        }) => cli::validate_amie(&img, &model, &out, &data, kernels.as_deref(), overwrite),
     };
     finish(result.map(|()| ExitCode::SUCCESS))
 }

@@ -74,6 +74,40 @@ pub fn check_no_earlier(paths: &[PathBuf], overwrite: bool) -> Result<()> {
     }
 }
 
+/// The files in `dir` named `prefix…suffix` (empty when `dir` is absent).
+pub fn files_like(dir: &Path, prefix: &str, suffix: &str) -> Result<Vec<PathBuf>> {
+    let entries = match std::fs::read_dir(dir) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(Error::io(dir, e)),
+        Ok(entries) => entries,
+    };
+    let mut found = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(|e| Error::io(dir, e))?;
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with(prefix) && name.ends_with(suffix) {
+            found.push(entry.path());
+        }
+    }
+    found.sort();
+    Ok(found)
+}
+
+/// A directory of numbered frames (`prefix…suffix`) for this command:
+/// earlier frames there are refused ([`check_no_earlier`]) unless
+/// `overwrite`, and with it removed first, so the directory then holds
+/// this command's frames only, never a mix of two runs.
+pub fn claim_frames_dir(dir: &Path, prefix: &str, suffix: &str, overwrite: bool) -> Result<()> {
+    let earlier = files_like(dir, prefix, suffix)?;
+    check_no_earlier(&earlier, overwrite)?;
+    for p in &earlier {
+        check_replaceable(p)?;
+        std::fs::remove_file(p).map_err(|e| Error::io(p, e))?;
+    }
+    Ok(())
+}
+
 /// Temporary sibling of `path`, unique to this process.
 fn temporary_for(path: &Path) -> PathBuf {
     let name = path
@@ -103,6 +137,33 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_frames_dir_with_earlier_frames_is_refused_or_cleared() {
+        let dir = tempfile::tempdir().unwrap();
+        let frames = dir.path().join("f");
+        // Absent, then empty: claimed.
+        claim_frames_dir(&frames, "frame_", ".png", false).unwrap();
+        std::fs::create_dir(&frames).unwrap();
+        claim_frames_dir(&frames, "frame_", ".png", false).unwrap();
+        // Other files do not count and are kept.
+        std::fs::write(frames.join("notes.txt"), b"keep").unwrap();
+        claim_frames_dir(&frames, "frame_", ".png", false).unwrap();
+        for k in [0, 7] {
+            std::fs::write(frames.join(format!("frame_{k:06}.png")), b"x").unwrap();
+        }
+        let e = claim_frames_dir(&frames, "frame_", ".png", false)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("frame_000000.png") && e.contains("--overwrite"),
+            "{e}"
+        );
+        assert_eq!(files_like(&frames, "frame_", ".png").unwrap().len(), 2);
+        claim_frames_dir(&frames, "frame_", ".png", true).unwrap();
+        assert!(files_like(&frames, "frame_", ".png").unwrap().is_empty());
+        assert!(frames.join("notes.txt").exists());
+    }
 
     #[test]
     fn replaces_regular_files_and_refuses_the_rest() {

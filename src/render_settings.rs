@@ -63,6 +63,12 @@ pub struct RenderSettings {
     /// out of the field ([`crate::render::field`]) instead of stopping with
     /// an error.
     pub allow_empty: bool,
+    /// Target per-pixel error (interior p99 against a converged render):
+    /// `optistim render` and `bench` then choose the cheapest settings of
+    /// the planner's ladder that meet it ([`crate::planner`]), in place of
+    /// the map filter, samples and tolerance above. In (0, 1].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_pixel_error: Option<f64>,
 }
 
 /// How the pixels inside the lit disk are integrated.
@@ -97,6 +103,7 @@ impl Default for RenderSettings {
             node_spacing: DEFAULT_NODE_SPACING,
             pixel_tolerance: DEFAULT_PIXEL_TOLERANCE,
             allow_empty: false,
+            max_pixel_error: None,
         }
     }
 }
@@ -133,6 +140,9 @@ impl RenderSettings {
                 "must be in [1e-6, 1e-2]",
             ));
         }
+        if let Some(e) = self.max_pixel_error {
+            check_pixel_error_target("render.max_pixel_error", e)?;
+        }
         if let Some(n) = self.sub_bands {
             if n == 0 || n > 1000 {
                 return Err(Error::invalid("render.sub_bands", "must be in 1..=1000"));
@@ -145,6 +155,18 @@ impl RenderSettings {
     pub fn density(&self) -> f64 {
         self.caps_per_pixel.unwrap_or(DEFAULT_DENSITY)
     }
+}
+
+/// A per-pixel error target must be finite and in (0, 1]; `key` names the
+/// key or flag it came from.
+pub fn check_pixel_error_target(key: &str, target: f64) -> Result<()> {
+    if !(target.is_finite() && target > 0.0 && target <= 1.0) {
+        return Err(Error::invalid(
+            key,
+            format!("must be in (0, 1], not {target}"),
+        ));
+    }
+    Ok(())
 }
 
 /// How the albedo map is averaged over a pixel's or cap's footprint.

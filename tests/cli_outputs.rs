@@ -135,3 +135,100 @@ fn render_refuses_an_earlier_result_unless_overwriting() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+fn frame_names(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("frame_") && n.ends_with(".png"))
+        .collect();
+    names.sort();
+    names
+}
+
+/// `run --dump DIR` (and `--captures DIR` below) twice: the second run is
+/// refused before it starts, naming an earlier frame and `--overwrite`,
+/// and the first run's frames are untouched; with `--overwrite` the
+/// earlier frames are removed and the directory holds the new run's only.
+fn frames_dir_is_kept_unless_told(flag: &str, extra: &[&str]) {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("frames");
+    let runs = tmp.path().join("runs");
+    let run = |frames: &str, overwrite: bool| {
+        let mut args = vec!["run", "configs/facility.toml", "--frames", frames];
+        args.extend(extra);
+        if overwrite {
+            args.push("--overwrite");
+        }
+        args.extend([flag]);
+        optistim(&args, &[&dir, Path::new("--runs-dir"), &runs])
+    };
+    let first = run("3", false);
+    assert!(ran(&first), "{}", String::from_utf8_lossy(&first.stderr));
+    let before = frame_names(&dir);
+    assert!(before.len() >= 2, "{before:?}");
+    let stamp = std::fs::read(dir.join(&before[0])).unwrap();
+    let again = run("1", false);
+    assert!(!ran(&again), "{flag}: a second run was accepted");
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(
+        err.contains(&before[0]) && err.contains("--overwrite") && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert_eq!(frame_names(&dir), before);
+    assert_eq!(std::fs::read(dir.join(&before[0])).unwrap(), stamp);
+    let replaced = run("1", true);
+    assert!(
+        ran(&replaced),
+        "{}",
+        String::from_utf8_lossy(&replaced.stderr)
+    );
+    assert_eq!(frame_names(&dir), ["frame_000000.png"]);
+}
+
+#[test]
+fn dump_refuses_earlier_frames_unless_overwriting() {
+    frames_dir_is_kept_unless_told("--dump", &[]);
+}
+
+#[test]
+fn captures_refuse_earlier_frames_unless_overwriting() {
+    frames_dir_is_kept_unless_told(
+        "--captures",
+        &[
+            "--display",
+            "sim-facility",
+            "--sim-facility",
+            "configs/simfacility.toml",
+        ],
+    );
+}
+
+#[test]
+fn validate_refuses_an_earlier_result_unless_overwriting() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("val");
+    std::fs::create_dir(&out_dir).unwrap();
+    std::fs::write(out_dir.join("report.json"), b"earlier").unwrap();
+    let out = optistim(
+        &[
+            "validate",
+            "amie",
+            "data/amie/AMI_EE3_040819_00208_00030.IMG",
+            "--out",
+        ],
+        &[&out_dir],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("report.json")
+            && err.contains("--overwrite")
+            && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(out_dir.join("report.json")).unwrap(),
+        b"earlier"
+    );
+}

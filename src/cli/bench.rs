@@ -44,6 +44,19 @@ pub(crate) struct BenchRow {
     pub(crate) stage_median_ms: [f64; 4],
     /// This setting's image under `--images DIR` (file name in DIR).
     pub(crate) image: Option<String>,
+    /// With `--max-pixel-error`: the planner's step and the interior p99 it
+    /// measured against its own converged render.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) planned: Option<PlannedStep>,
+}
+
+/// The planner's choice behind a bench row.
+#[derive(Serialize)]
+pub(crate) struct PlannedStep {
+    pub(crate) max_pixel_error: f64,
+    pub(crate) label: String,
+    pub(crate) predicted_pixel_error: f64,
+    pub(crate) why: String,
 }
 
 /// `bench --images`: one render as radiance per unit solar irradiance at
@@ -150,6 +163,9 @@ pub struct BenchSweep {
     pub map_tolerances: Vec<f64>,
     /// The reference's caps per pixel; None: 4× the densest timed.
     pub reference_density: Option<f64>,
+    /// A per-pixel error target: at each phase the planner's settings
+    /// alone are timed (`crate::planner`), in place of the sweep.
+    pub max_pixel_error: Option<f64>,
 }
 
 /// The values given on the command line, or the scene's own when none.
@@ -175,6 +191,19 @@ struct Point {
 }
 
 impl Point {
+    /// The point of the settings `s`.
+    fn of(s: &RenderSettings) -> Point {
+        Point {
+            mode: s.interior,
+            density: s.density(),
+            samples: s.texture_samples,
+            filter: s.map_filter,
+            map_tolerance: s.map_tolerance,
+            spacing: s.node_spacing,
+            tolerance: s.pixel_tolerance,
+        }
+    }
+
     /// `settings` for this point (the scene's `min_caps`).
     fn apply(&self, settings: &mut RenderSettings, min_caps: usize) -> Result<()> {
         settings.map_filter = self.filter;
@@ -379,6 +408,7 @@ impl BenchRow {
             interior_error_p99: percentile(&interior, 0.99),
             stage_median_ms: t.stage_median_ms,
             image: None,
+            planned: None,
         }
     }
 
@@ -437,6 +467,9 @@ pub fn bench(
     optistim::outfile::check_no_earlier(&outputs, overwrite)?;
     let base = Scene::from_file(scene_path)?;
     let points = sweep.points(&base)?;
+    if let Some(t) = sweep.max_pixel_error {
+        optistim::render_settings::check_pixel_error_target("--max-pixel-error", t)?;
+    }
     let pin = base.camera.pinhole.clone();
     let mut renderer = Renderer::new(pin.clone());
     let solid_angle = images.map(|_| pin.solid_angle_table());
@@ -453,11 +486,16 @@ pub fn bench(
     println!("| phase [deg] | interior | caps/px | map samples | node spacing | pixel tol. | caps | integrated | interior px | median [ms] | p90 [ms] | layout / mask / caps / interior [ms] | flux error | pixel err p50 | p99 | max | interior p99 |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     // Reference: 16× the caps of the densest setting (4× per axis).
-    let ref_density = sweep
-        .reference_density
-        .unwrap_or_else(|| 4.0 * sweep.densities.iter().cloned().fold(0.0, f64::max));
+    let planning = optistim::planner::target(sweep.max_pixel_error, &base).is_some();
+    let densest = if planning {
+        base.render.density()
+    } else {
+        sweep.densities.iter().cloned().fold(0.0, f64::max)
+    };
+    let ref_density = sweep.reference_density.unwrap_or(4.0 * densest);
     // One step per reference render and per timed setting.
-    let steps = sweep.phases.len() * (points.len() + 1);
+    let per_phase = if planning { 1 } else { points.len() };
+    let steps = sweep.phases.len() * (per_phase + 1);
     let progress = optistim::progress::bar(steps as u64, "bench");
     let mut rows: Vec<BenchRow> = Vec::new();
     for &phase in &sweep.phases {
@@ -470,8 +508,20 @@ pub fn bench(
             write_bench_state(dir, phase, &scene)?;
             save_bench_image(dir, &format!("phase{phase}_ref"), &reference, omega, &pin)?;
         }
+        let plan = match optistim::planner::target(sweep.max_pixel_error, &scene) {
+            Some((target, source)) => {
+                progress.set_message(format!("{phase}° planning"));
+                let plan = optistim::planner::Planner::new(&scene)
+                    .plan(target, source)
+                    .with_context(|| format!("{}", scene_path.display()))?;
+                progress.suspend(|| println!("{phase}°: planned: {}", plan.why));
+                Some(plan)
+            }
+            None => None,
+        };
+        let planned_points = plan.as_ref().map(|p| vec![Point::of(&p.settings)]);
         let mut settings = scene.render.clone();
-        for p in &points {
+        for p in planned_points.as_ref().unwrap_or(&points) {
             p.apply(&mut settings, scene.render.min_caps)?;
             progress.set_message(format!("{phase}° {:?} {} caps/px", p.mode, p.density));
             let timing = time_renders(&mut renderer, &scene, &settings, repeats);
@@ -479,6 +529,12 @@ pub fn bench(
             let flux_error = (total(flux) - total(&reference)).abs() / total(&reference);
             let errors = pixel_errors(flux, &reference, &renderer, p.mode);
             let mut row = BenchRow::new(phase, p, &timing, flux_error, errors);
+            row.planned = plan.as_ref().map(|p| PlannedStep {
+                max_pixel_error: p.max_pixel_error,
+                label: p.label.clone(),
+                predicted_pixel_error: p.predicted_pixel_error,
+                why: p.why.clone(),
+            });
             if let (Some(dir), Some(omega)) = (images, &solid_angle) {
                 let name = format!("phase{phase}_row{}", rows.len());
                 save_bench_image(dir, &name, renderer.flux(), omega, &pin)?;

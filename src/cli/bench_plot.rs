@@ -53,6 +53,8 @@ struct Axis {
     name: &'static str,
     value: fn(&Setting) -> f64,
     label: fn(&Setting) -> String,
+    /// The value alone, beside a point on a curve along this axis.
+    short: fn(&Setting) -> String,
 }
 
 const AXES: [Axis; 6] = [
@@ -60,31 +62,37 @@ const AXES: [Axis; 6] = [
         name: "caps per pixel",
         value: |s| s.density,
         label: |s| format!("{} caps/px", s.density),
+        short: |s| format!("{}", s.density),
     },
     Axis {
         name: "node spacing",
         value: |s| s.spacing as f64,
         label: |s| format!("nodes {} px", s.spacing),
+        short: |s| format!("{} px", s.spacing),
     },
     Axis {
         name: "pixel tolerance",
         value: |s| s.tolerance,
         label: |s| format!("tol. {:.0e}", s.tolerance),
+        short: |s| format!("{:.0e}", s.tolerance),
     },
     Axis {
         name: "map samples",
         value: |s| s.samples as f64,
         label: |s| format!("map {0}×{0}", s.samples),
+        short: |s| format!("{0}×{0}", s.samples),
     },
     Axis {
         name: "phase",
         value: |s| s.phase,
         label: |s| format!("{:.0}°", s.phase),
+        short: |s| format!("{:.0}°", s.phase),
     },
     Axis {
         name: "interior",
         value: |s| if s.interior == "pixels" { 0.0 } else { 1.0 },
         label: |s| format!("interior {}", s.interior),
+        short: |s| s.interior.to_string(),
     },
 ];
 
@@ -117,7 +125,7 @@ pub fn figure_path(plot: &Path) -> Result<PathBuf> {
 /// parameter: the first of caps per pixel, node spacing, pixel tolerance,
 /// map samples that takes several values), as `(label, rows)` with the
 /// rows in sweep order.
-fn families(rows: &[BenchRow]) -> (Option<&'static str>, Vec<Family<'_>>) {
+fn families(rows: &[BenchRow]) -> (Option<&'static Axis>, Vec<Family<'_>>) {
     let settings: Vec<Setting> = rows.iter().map(Setting::of).collect();
     let along = AXES[..4].iter().position(|a| varies(a, &settings));
     let keyed: Vec<&Axis> = AXES
@@ -143,7 +151,7 @@ fn families(rows: &[BenchRow]) -> (Option<&'static str>, Vec<Family<'_>>) {
         }
     }
     let families = out.into_iter().map(|(_, l, r)| (l, r)).collect();
-    (along.map(|i| AXES[i].name), families)
+    (along.map(|i| &AXES[i]), families)
 }
 
 /// A curve's label and its rows.
@@ -166,7 +174,13 @@ fn target_lines(x: (f64, f64), y: (f64, f64), y_target: f64, y_label: &str) -> [
 }
 
 /// One panel: error measure `error` [%] against the median time.
-fn panel(fams: &[Family], y_label: &str, error: fn(&BenchRow) -> f64, target: f64) -> Panel {
+fn panel(
+    fams: &[Family],
+    along: Option<&Axis>,
+    y_label: &str,
+    error: fn(&BenchRow) -> f64,
+    target: f64,
+) -> Panel {
     let all = fams.iter().flat_map(|f| f.1.iter());
     let (mut x0, mut x1) = (TARGET_MS, TARGET_MS);
     let (mut y0, mut y1) = (target, target);
@@ -180,7 +194,8 @@ fn panel(fams: &[Family], y_label: &str, error: fn(&BenchRow) -> f64, target: f6
         .iter()
         .map(|(label, rows)| {
             let pts = rows.iter().map(|r| (r.median_ms, error(r))).collect();
-            Series::line_points(label.clone(), pts)
+            let labels = rows.iter().map(|r| point_label(r, along)).collect();
+            Series::line_points(label.clone(), pts).with_point_labels(labels)
         })
         .collect();
     series.extend(target_lines((x0, x1), (y0, y1), target, y_label));
@@ -191,22 +206,36 @@ fn panel(fams: &[Family], y_label: &str, error: fn(&BenchRow) -> f64, target: f6
     }
 }
 
+/// What a point is: its value along the curve's axis, else the planner's
+/// step that chose it, else nothing (the legend says it).
+fn point_label(row: &BenchRow, along: Option<&Axis>) -> String {
+    match (along, &row.planned) {
+        (Some(axis), _) => (axis.short)(&Setting::of(row)),
+        (None, Some(plan)) => plan.label.clone(),
+        (None, None) => String::new(),
+    }
+}
+
 /// Writes the figure of `rows` (one bench sweep) to `path`.
 pub(super) fn write_bench_figure(path: &Path, rows: &[BenchRow], what: &str) -> Result<()> {
     let (along, fams) = families(rows);
-    let along = along.map_or(String::new(), |a| format!("; along each curve: {a}"));
+    let title_along = along.map_or(String::new(), |a| {
+        format!("; along each curve: {} (labelled)", a.name)
+    });
     let fig = LogXPanels {
-        title: format!("Render time against error: {what}{along}"),
+        title: format!("Render time against error: {what}{title_along}"),
         x_label: "render time per frame, median (ms)".into(),
         panels: vec![
             panel(
                 &fams,
+                along,
                 "total-flux error",
                 |r| 100.0 * r.flux_error,
                 TARGET_FLUX_PERCENT,
             ),
             panel(
                 &fams,
+                along,
                 "per-pixel error p99",
                 |r| 100.0 * r.pixel_error_p99,
                 TARGET_PIXEL_P99_PERCENT,

@@ -14,6 +14,7 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use crate::fidelity;
 use crate::render::RenderSettings;
 
 /// Safety factor on a predicted render time: a rung is chosen only if its
@@ -25,11 +26,6 @@ const LOAD_WINDOW: usize = 30;
 /// The quantile of the recent ratios used as the load factor: a frame
 /// must fit even when the machine is as slow as in most recent frames.
 const LOAD_QUANTILE: f64 = 0.9;
-/// The looser interior quadrature tolerance of the second rung
-/// (BENCHMARKS.md, "the interior pixels' quadrature tolerance": −20 to
-/// −50 % of the interior stage with the map's error unchanged).
-const LOOSE_PIXEL_TOLERANCE: f64 = 1e-3;
-
 /// One fidelity step: blocks of `block`² screen pixels rendered with
 /// `settings`.
 #[derive(Clone, Debug)]
@@ -46,28 +42,16 @@ pub struct Rung {
 /// benchmarks show to buy the most time per unit of error).
 pub fn ladder(base: &RenderSettings, block: usize, max_block: usize) -> Vec<Rung> {
     let block = block.max(1);
-    let mut rungs = vec![Rung {
-        label: format!("block {block}, configured"),
-        block,
-        settings: base.clone(),
-    }];
-    let mut loose = base.clone();
-    loose.pixel_tolerance = base.pixel_tolerance.max(LOOSE_PIXEL_TOLERANCE);
-    if loose.pixel_tolerance > base.pixel_tolerance {
-        rungs.push(Rung {
-            label: format!("block {block}, tolerance {LOOSE_PIXEL_TOLERANCE:e}"),
+    let steps = fidelity::coarser_steps(base, "configured");
+    let coarsest = steps.last().map(|s| s.settings.clone()).unwrap_or_default();
+    let mut rungs: Vec<Rung> = steps
+        .into_iter()
+        .map(|s| Rung {
+            label: format!("block {block}, {}", s.label),
             block,
-            settings: loose.clone(),
-        });
-    }
-    if loose.texture_samples > 1 {
-        loose.texture_samples = 1;
-        rungs.push(Rung {
-            label: format!("block {block}, tolerance {LOOSE_PIXEL_TOLERANCE:e}, 1 map sample"),
-            block,
-            settings: loose.clone(),
-        });
-    }
+            settings: s.settings,
+        })
+        .collect();
     for m in 2.. {
         let b = block * m;
         if b > max_block {
@@ -76,7 +60,7 @@ pub fn ladder(base: &RenderSettings, block: usize, max_block: usize) -> Vec<Rung
         rungs.push(Rung {
             label: format!("block {b}"),
             block: b,
-            settings: loose.clone(),
+            settings: coarsest.clone(),
         });
     }
     rungs

@@ -11,11 +11,9 @@ use super::screen::ScreenModel;
 use crate::facility::config::FacilityConfig;
 use crate::facility::geometry::GeometryCalibration;
 use crate::facility::governor::{ladder, Rung, RungProfile, Sample};
-use crate::render::{Interior, MapFilter, RenderSettings};
 use crate::scene::{Scene, State};
 
-/// Caps per pixel along each axis of the converged reference render.
-pub const REFERENCE_DENSITY: f64 = 3.0;
+pub use crate::fidelity::{reference_settings, REFERENCE_DENSITY};
 
 /// States profiled per rung.
 const SAMPLE_STATES: usize = 5;
@@ -89,17 +87,6 @@ pub fn rung_models(
         .map(|r| ScreenModel::with_fidelity(config, scene, geometry, r.block, r.settings.clone()))
         .collect();
     (rungs, models)
-}
-
-/// Settings of the converged reference: the lune's caps everywhere at
-/// [`REFERENCE_DENSITY`] per pixel and axis, exact map means.
-pub fn reference_settings(base: &RenderSettings) -> RenderSettings {
-    let mut s = base.clone();
-    s.caps_per_pixel = Some(REFERENCE_DENSITY);
-    s.min_caps = s.min_caps.max(256);
-    s.interior = Interior::Caps;
-    s.map_filter = MapFilter::Exact;
-    s
 }
 
 /// The converged reference model of `config`'s screen.
@@ -178,21 +165,8 @@ pub fn screen_image(model: &ScreenModel) -> Vec<f32> {
 /// (p99 of |image / reference − 1| over the reference's pixels above
 /// [`PIXEL_FLOOR`] of its peak, |Σ image / Σ reference − 1|).
 pub fn compare(image: &[f32], reference: &[f32]) -> (f64, f64) {
-    let peak = reference.iter().copied().fold(0.0f32, f32::max);
-    if !(peak > 0.0) {
-        return (0.0, 0.0);
-    }
-    let mut errors: Vec<f64> = image
-        .iter()
-        .zip(reference)
-        .filter(|(_, &r)| r > PIXEL_FLOOR * peak)
-        .map(|(&a, &r)| (a as f64 / r as f64 - 1.0).abs())
-        .collect();
-    errors.sort_by(f64::total_cmp);
-    let p99 = errors
-        .get((errors.len() * 99 / 100).min(errors.len().saturating_sub(1)))
-        .copied()
-        .unwrap_or(0.0);
-    let sum = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>();
-    (p99, (sum(image) / sum(reference) - 1.0).abs())
+    (
+        crate::fidelity::pixel_error_p99(image, reference, PIXEL_FLOOR, |_| true),
+        crate::fidelity::flux_error(image, reference),
+    )
 }

@@ -1,0 +1,183 @@
+//! The offline planner of `optistim render` and `bench`: given a per-pixel
+//! error target, the cheapest settings of the ladder
+//! ([`crate::fidelity::planner_ladder`]) whose measured error on the scene
+//! meets it. Like the governor's pre-flight, the error is measured, not
+//! read from a table: one converged render of the scene
+//! ([`crate::fidelity::reference_settings`]), then the ladder's settings
+//! from the coarsest up until one meets the target.
+//!
+//! The error planned on is the interior p99: the 99th percentile of
+//! |render / converged − 1| over the pixels integrated per pixel (the
+//! disk's interior) above [`PIXEL_FLOOR`] of the peak. Edge pixels (limb,
+//! terminator) come from the lune's caps at the scene's density, which no
+//! step changes; their p99 is reported beside it.
+
+use std::time::Instant;
+
+use crate::error::{Error, Result};
+use crate::fidelity::{self, Step};
+pub use crate::fidelity::{Plan, StepMeasure};
+use crate::render::Renderer;
+use crate::render_settings::check_pixel_error_target;
+use crate::scene::Scene;
+
+/// Pixels below this fraction of the reference's peak are left out of
+/// the per-pixel errors (as in `optistim bench`).
+pub const PIXEL_FLOOR: f32 = 0.01;
+
+/// Map parts per cap and axis of the planner's converged render (the
+/// governor's takes 2): on the benchmark Moon the converged render with
+/// 2×2 parts is itself 1.1e-3 off (interior p99) a render at 6 caps per
+/// pixel with 4×4 parts, with 4×4 parts 3.8e-4 (`tests/render_planner.rs`
+/// measures the planner against that render).
+pub const REFERENCE_PARTS: usize = 4;
+
+/// A ladder on one scene with its converged render, each step measured
+/// once when first asked for.
+pub struct Planner<'a> {
+    scene: &'a Scene,
+    renderer: Renderer,
+    ladder: Vec<Step>,
+    reference: Vec<f32>,
+    measured: Vec<Option<StepMeasure>>,
+    spent: f64,
+}
+
+impl<'a> Planner<'a> {
+    /// Renders `scene`'s converged reference (the ladder on the scene's
+    /// own `[render]` settings).
+    pub fn new(scene: &'a Scene) -> Planner<'a> {
+        let t = Instant::now();
+        let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+        let mut reference_settings = fidelity::reference_settings(&scene.render);
+        reference_settings.texture_samples = REFERENCE_PARTS;
+        renderer.render_flux(&scene.body, &scene.state, &reference_settings, None);
+        let reference = renderer.flux().to_vec();
+        let ladder = fidelity::planner_ladder(&scene.render);
+        let measured = vec![None; ladder.len()];
+        Planner {
+            scene,
+            renderer,
+            ladder,
+            reference,
+            measured,
+            spent: t.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// The ladder, finest first.
+    pub fn ladder(&self) -> &[Step] {
+        &self.ladder
+    }
+
+    /// Step `i` rendered and compared with the converged render.
+    pub fn measure(&mut self, i: usize) -> StepMeasure {
+        if let Some(m) = &self.measured[i] {
+            return m.clone();
+        }
+        let t = Instant::now();
+        let settings = &self.ladder[i].settings;
+        self.renderer
+            .render_flux(&self.scene.body, &self.scene.state, settings, None);
+        let render_ms = t.elapsed().as_secs_f64() * 1e3;
+        let flux = self.renderer.flux();
+        let width = self.scene.camera.pinhole.width;
+        let r = &self.renderer;
+        let m = StepMeasure {
+            step: i,
+            label: self.ladder[i].label.clone(),
+            interior_pixel_error_p99: fidelity::pixel_error_p99(
+                flux,
+                &self.reference,
+                PIXEL_FLOOR,
+                |k| r.is_interior_pixel(k % width, k / width),
+            ),
+            pixel_error_p99: fidelity::pixel_error_p99(flux, &self.reference, PIXEL_FLOOR, |_| {
+                true
+            }),
+            flux_error: fidelity::flux_error(flux, &self.reference),
+            render_ms,
+        };
+        self.spent += t.elapsed().as_secs_f64();
+        self.measured[i] = Some(m.clone());
+        m
+    }
+
+    /// The coarsest step whose measured interior p99 meets `target`
+    /// (`source`: the key or flag it came from, named in errors). A
+    /// target out of (0, 1] or below what the finest step reaches is an
+    /// error naming `source`.
+    pub fn plan(&mut self, target: f64, source: &str) -> Result<Plan> {
+        check_pixel_error_target(source, target)?;
+        let mut tried = Vec::new();
+        let mut chosen = None;
+        for i in (0..self.ladder.len()).rev() {
+            let m = self.measure(i);
+            let meets = m.interior_pixel_error_p99 <= target;
+            tried.push(m);
+            if meets {
+                chosen = Some(i);
+                break;
+            }
+        }
+        let finest = tried.last().expect("a ladder has steps").clone();
+        let Some(i) = chosen else {
+            return Err(Error::invalid(
+                source,
+                format!(
+                    "{target:e} is below what the finest setting reaches on this scene ({}: interior p99 {:.2e})",
+                    finest.label, finest.interior_pixel_error_p99
+                ),
+            ));
+        };
+        Ok(self.report(i, target, source, tried))
+    }
+
+    fn report(&self, i: usize, target: f64, source: &str, tried: Vec<StepMeasure>) -> Plan {
+        let m = tried.last().expect("the chosen step was measured").clone();
+        let coarser = tried.len().checked_sub(2).map(|k| &tried[k]);
+        let why = match coarser {
+            Some(c) => format!(
+                "{} is the cheapest of the {} settings whose interior p99 against a converged render ({:.2e}) meets {target:e}; the next cheaper, {}, measured {:.2e}",
+                m.label,
+                self.ladder.len(),
+                m.interior_pixel_error_p99,
+                c.label,
+                c.interior_pixel_error_p99
+            ),
+            None => format!(
+                "{} is the cheapest of the {} settings and its interior p99 against a converged render ({:.2e}) meets {target:e}",
+                m.label,
+                self.ladder.len(),
+                m.interior_pixel_error_p99
+            ),
+        };
+        Plan {
+            max_pixel_error: target,
+            source: source.to_string(),
+            step: i,
+            label: m.label.clone(),
+            settings: self.ladder[i].settings.clone(),
+            predicted_pixel_error: m.interior_pixel_error_p99,
+            predicted_pixel_error_all: m.pixel_error_p99,
+            predicted_flux_error: m.flux_error,
+            why,
+            ladder: self.ladder.iter().map(|s| s.label.clone()).collect(),
+            measured: tried,
+            reference_caps_per_pixel: fidelity::REFERENCE_DENSITY,
+            reference_map_parts: REFERENCE_PARTS,
+            planning_ms: self.spent * 1e3,
+        }
+    }
+}
+
+/// The target of a render: `flag` (`--max-pixel-error`) if given, else
+/// the scene's `[render] max_pixel_error`, with the name to report it by.
+pub fn target(flag: Option<f64>, scene: &Scene) -> Option<(f64, &'static str)> {
+    flag.map(|t| (t, "--max-pixel-error")).or_else(|| {
+        scene
+            .render
+            .max_pixel_error
+            .map(|t| (t, "render.max_pixel_error"))
+    })
+}
