@@ -40,6 +40,7 @@ pub mod figures;
 pub mod fuzzing;
 pub mod infile;
 pub mod instruments;
+pub mod labels;
 pub mod outfile;
 pub mod progress;
 pub mod radiometry;

@@ -35,6 +35,10 @@ enum Command {
         /// Replace an earlier render in `--out`.
         #[arg(long)]
         overwrite: bool,
+        /// Also write the exact labels (masks, depth, normals, latitude and
+        /// longitude, labels.json, coco.json; docs/DATASETS.md).
+        #[arg(long)]
+        labels: bool,
     },
     /// Time the renderer against its converged reference (speed vs error).
     Bench {
@@ -155,7 +159,8 @@ fn main() -> ExitCode {
             out,
             caps_per_pixel,
             overwrite,
-        } => cli::render(&scene, &out, caps_per_pixel, overwrite),
+            labels,
+        } => cli::render(&scene, &out, caps_per_pixel, overwrite, labels),
         Command::Bench {
             scene,
             phases,
