@@ -33,6 +33,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod calibration;
+pub mod dataset;
 pub mod ephemeris;
 pub mod error;
 pub mod facility;

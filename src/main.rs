@@ -109,6 +109,9 @@ enum Command {
     /// Draw the timing figure of a frame log: DIR/timing.png (latency
     /// over time with missed deadlines, histogram with p50/p99).
     PlotLog(cli::plot_log::PlotLogArgs),
+    /// Render a dataset (or this process's shard of it) from a spec, or
+    /// `--merge` the shards (docs/DATASETS.md).
+    Dataset(cli::dataset::DatasetArgs),
     /// Validate against real flight images.
     #[command(subcommand)]
     Validate(ValidateCommand),
@@ -154,6 +157,7 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => cli::calibrate::calibrate(&args),
         Command::PlotLog(args) => cli::plot_log::plot_log(&args),
         Command::SimLab(args) => cli::sim_lab::sim_lab(&args),
+        Command::Dataset(args) => cli::dataset::dataset(&args),
         Command::Render {
             scene,
             out,
