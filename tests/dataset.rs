@@ -387,3 +387,41 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn trajectory_rows_are_the_items() {
+    let tmp = tempfile::tempdir().unwrap();
+    let csv = root().join("configs/moon_approach.csv");
+    let base = std::fs::read_to_string(spec_in(tmp.path(), "")).unwrap();
+    let poses_at = base.find("[poses]").unwrap();
+    let head = base[..poses_at].replace("count = 8\n", "");
+    let text = format!("{head}[poses]\ntrajectory = {csv:?}\n");
+    let path = tmp.path().join("t.toml");
+    let spec = Spec::from_toml(&text, &path, None).unwrap();
+    // Columns t, cam_x, cam_y, cam_z, ... read here by hand.
+    let rows: Vec<Vec<f64>> = std::fs::read_to_string(&csv)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(spec.count, rows.len());
+    for i in [0, 7, rows.len() - 1] {
+        let st = spec.item(i).state;
+        assert_eq!(
+            st.camera_position,
+            DVec3::new(rows[i][1], rows[i][2], rows[i][3])
+        );
+        assert_eq!(
+            st.sun_position,
+            DVec3::new(rows[i][8], rows[i][9], rows[i][10])
+        );
+    }
+    // More items than rows, and both pose sources, are errors.
+    let more = text.replace("seed =", &format!("count = {}\nseed =", rows.len() + 1));
+    let err = Spec::from_toml(&more, &path, None).unwrap_err().to_string();
+    assert!(err.contains("dataset.count"), "{err}");
+    let both = format!("{text}phase_deg = [10.0, 20.0]\n");
+    let err = Spec::from_toml(&both, &path, None).unwrap_err().to_string();
+    assert!(err.contains("poses.trajectory"), "{err}");
+}
