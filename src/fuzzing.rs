@@ -24,11 +24,12 @@ pub enum Target {
     Pds3Image,
     UdpDatagram,
     SyncTemplate,
+    DatasetSpec,
 }
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 11] = [
+    pub const ALL: [Target; 12] = [
         Target::FacilityToml,
         Target::SceneToml,
         Target::Trajectory,
@@ -40,6 +41,7 @@ impl Target {
         Target::Pds3Image,
         Target::UdpDatagram,
         Target::SyncTemplate,
+        Target::DatasetSpec,
     ];
 
     /// Short name for reports.
@@ -56,6 +58,7 @@ impl Target {
             Target::Pds3Image => "pds3_image",
             Target::UdpDatagram => "udp_datagram",
             Target::SyncTemplate => "sync_template",
+            Target::DatasetSpec => "dataset_spec",
         }
     }
 
@@ -91,6 +94,7 @@ impl Target {
                 s(br#"{"t":1.0,"camera_position":[0,0,-1e7],"camera_attitude":[1,0,0,0],"sun_position":[1.5e11,0,0]}"#),
             ],
             Target::SyncTemplate => vec![s(b"FRAME {id} {t} {exposure_us}\n")],
+            Target::DatasetSpec => vec![s(DATASET_SEED.as_bytes())],
         }
     }
 
@@ -122,9 +126,32 @@ impl Target {
             Target::Pds3Image => crate::validate::pds3::parse_image(bytes, name).is_ok(),
             Target::UdpDatagram => f::udp::parse_datagram(bytes).is_ok(),
             Target::SyncTemplate => f::serial::CommandTemplate::parse(&text).is_ok(),
+            // The spec names `scene.toml` beside it: the self-contained seed scene.
+            Target::DatasetSpec => {
+                let scene = scratch.join("scene.toml");
+                std::fs::write(&scene, SCENE_SEED).is_ok()
+                    && crate::dataset::Spec::from_toml(&text, &scratch.join("spec.toml"), None)
+                        .is_ok_and(|s| s.item(s.count - 1).index + 1 == s.count)
+            }
         }
     }
 }
+
+/// A dataset spec over [`SCENE_SEED`] (written beside it as `scene.toml`).
+const DATASET_SEED: &str = r#"[dataset]
+scene = "scene.toml"
+count = 8
+seed = 2026
+out = "out"
+outputs = ["image", "labels"]
+
+[poses]
+distance = [4.0e7, 9.0e7]
+phase_deg = [10.0, 120.0]
+roll_deg = [0.0, 360.0]
+jitter_deg = 0.5
+random_body_attitude = true
+"#;
 
 /// A scene that reads no file.
 const SCENE_SEED: &str = r#"[camera]
