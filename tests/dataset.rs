@@ -145,9 +145,12 @@ fn a_killed_shard_resumes_from_what_verifies() {
     );
     run_ok(&["dataset", s(&spec), "--out", s(&out)], &[]);
     let items = out.join("items");
-    // A kill's leftovers: one item gone, one with a corrupt image, one
+    // A kill's leftovers: items gone, one with a corrupt image, one
     // with a file missing, and a half-written temporary directory.
     std::fs::remove_dir_all(items.join("0000002")).unwrap();
+    // A file where an item's directory belongs.
+    std::fs::remove_dir_all(items.join("0000001")).unwrap();
+    std::fs::write(items.join("0000001"), b"junk").unwrap();
     let mut dn = std::fs::read(items.join("0000004/dn.png")).unwrap();
     let last = dn.len() - 20;
     dn[last] ^= 0xff;
@@ -160,13 +163,13 @@ fn a_killed_shard_resumes_from_what_verifies() {
     let err = String::from_utf8_lossy(&merge.stderr);
     assert!(!merge.status.success());
     assert!(
-        err.contains("3 of 8 items missing") && err.contains("first: 2, 4, 6"),
+        err.contains("4 of 8 items missing") && err.contains("first: 1, 2, 4, 6"),
         "{err}"
     );
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     let line = run_ok(&["dataset", s(&spec), "--out", s(&out)], &[]);
     assert!(
-        line.contains("8 items, 3 rendered, 5 verified and kept"),
+        line.contains("8 items, 4 rendered, 4 verified and kept"),
         "{line}"
     );
     assert!(!items.join(".0000002.tmp.424242").exists());

@@ -265,18 +265,27 @@ fn write_atomically(spec: &Spec, item: &Item, worker: &mut Worker) -> Result<()>
     remove_temporaries(&items, &item.name)?;
     let tmp = items.join(format!(".{}.tmp.{}", item.name, std::process::id()));
     std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    let written = worker
-        .write_item(spec, item, &tmp)
-        .map_err(|e| Error::Other(format!("item {}: {e}", item.index)));
-    if let Err(e) = written {
-        let _ = std::fs::remove_dir_all(&tmp);
-        return Err(e);
-    }
     let dest = items.join(&item.name);
-    if dest.exists() {
-        std::fs::remove_dir_all(&dest).map_err(|e| Error::io(&dest, e))?;
+    let done = worker
+        .write_item(spec, item, &tmp)
+        .and_then(|_| replace(&tmp, &dest));
+    if let Err(e) = done {
+        // A failed item (a full disk, say) leaves nothing behind.
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(Error::Other(format!("item {}: {e}", item.index)));
     }
-    std::fs::rename(&tmp, &dest).map_err(|e| Error::io(&dest, e))
+    Ok(())
+}
+
+/// Renames `tmp` to `dest`, removing whatever `dest` held before.
+fn replace(tmp: &Path, dest: &Path) -> Result<()> {
+    let removed = match std::fs::symlink_metadata(dest) {
+        Ok(m) if m.is_dir() => std::fs::remove_dir_all(dest),
+        Ok(_) => std::fs::remove_file(dest),
+        Err(_) => Ok(()),
+    };
+    removed.map_err(|e| Error::io(dest, e))?;
+    std::fs::rename(tmp, dest).map_err(|e| Error::io(dest, e))
 }
 
 /// Removes `.NAME.tmp.*` left by a killed run (only this item's owner
