@@ -129,7 +129,7 @@ impl Target {
             // The spec names `scene.toml` beside it: the self-contained seed scene.
             Target::DatasetSpec => {
                 let scene = scratch.join("scene.toml");
-                std::fs::write(&scene, SCENE_SEED).is_ok()
+                (scene.is_file() || std::fs::write(&scene, SCENE_SEED).is_ok())
                     && crate::dataset::Spec::from_toml(&text, &scratch.join("spec.toml"), None)
                         .is_ok_and(|s| s.item(s.count - 1).index + 1 == s.count)
             }
