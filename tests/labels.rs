@@ -300,3 +300,28 @@ fn render_labels_writes_the_documented_files() {
     let (t, _) = closest_approach(DVec3::new(0.0, 0.0, -6.636e7), d, DVec3::ZERO, R).unwrap();
     assert!((depth[32 * 64 + 32] as f64 - t).abs() < 1e-6 * t);
 }
+
+#[test]
+fn a_body_behind_or_across_the_edge_gives_empty_or_clipped_labels() {
+    let cam = camera(64, 80.0);
+    // Behind the camera: no pixel, no disk, no box, no COCO annotation.
+    let mut st = state(DVec3::ZERO, DQuat::IDENTITY, DVec3::X * 1.5e11);
+    st.body_position = DVec3::new(0.0, 0.0, -5.0 * R);
+    let l = labels::compute(&cam, &st, R, None);
+    assert_eq!(l.frame.pixel_counts.body, 0);
+    assert!(l.frame.disk.projected_centre.is_none() && l.frame.disk.limb_ellipse.is_none());
+    assert!(l.frame.disk.bbox.is_none());
+    let coco = files::coco(&[("x.png".into(), &l)]);
+    assert_eq!(coco["annotations"].as_array().unwrap().len(), 0);
+    // Centred on the right edge (u = 64): the box starts at the limb's
+    // left tangent, f tan(β − ρ) + cx, and is clipped at the image edge.
+    let beta = (32.0f64 / 80.0).atan();
+    st.body_position = DVec3::new(beta.sin(), 0.0, beta.cos()) * 6.0 * R;
+    let l = labels::compute(&cam, &st, R, None);
+    let rho = (1.0f64 / 6.0).asin();
+    let b = l.frame.disk.bbox.unwrap();
+    assert!((b[0] - (32.0 + 80.0 * (beta - rho).tan())).abs() < 1e-9);
+    assert!((b[0] + b[2] - 64.0).abs() < 1e-12);
+    let pc = l.frame.disk.projected_centre.unwrap();
+    assert!((pc[0] - 64.0).abs() < 1e-9);
+}
