@@ -3,6 +3,7 @@
 mod bench;
 pub mod bench_plot;
 pub mod calibrate;
+pub mod dataset;
 pub mod plot_log;
 pub mod sim_lab;
 
@@ -43,8 +44,14 @@ pub fn render(
     caps_per_pixel: Option<f64>,
     max_pixel_error: Option<f64>,
     overwrite: bool,
+    labels: bool,
 ) -> Result<()> {
-    let files: Vec<_> = RENDER_FILES.iter().map(|f| out.join(f)).collect();
+    let label_files = optistim::labels::files::ALL_FILES.iter().filter(|_| labels);
+    let files: Vec<_> = RENDER_FILES
+        .iter()
+        .chain(label_files)
+        .map(|f| out.join(f))
+        .collect();
     optistim::outfile::check_no_earlier(&files, overwrite)?;
     let mut scene = Scene::from_file(scene_path)?;
     if let Some(d) = caps_per_pixel {
@@ -67,6 +74,12 @@ pub fn render(
     let pin = &scene.camera.pinhole;
     output::write_render(out, pin.width, pin.height, &images)
         .with_context(|| format!("writing {}", out.display()))?;
+    if labels {
+        let epoch = optistim::scene::epoch_text(scene_path)?;
+        let l = optistim::labels::compute(pin, &scene.state, scene.body.radius, epoch);
+        optistim::labels::files::write(out, &l, "dn.png")
+            .with_context(|| format!("writing labels into {}", out.display()))?;
+    }
     let s = &images.summary;
     tracing::info!(
         phase_deg = format!("{:.3}", s.phase_angle_deg),

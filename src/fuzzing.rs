@@ -29,11 +29,12 @@ pub enum Target {
     Responsivity,
     SimFacilityToml,
     CalibrateToml,
+    DatasetSpec,
 }
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 16] = [
+    pub const ALL: [Target; 17] = [
         Target::FacilityToml,
         Target::SceneToml,
         Target::Trajectory,
@@ -50,6 +51,7 @@ impl Target {
         Target::Responsivity,
         Target::SimFacilityToml,
         Target::CalibrateToml,
+        Target::DatasetSpec,
     ];
 
     /// Short name for reports.
@@ -71,6 +73,7 @@ impl Target {
             Target::Responsivity => "responsivity_toml",
             Target::SimFacilityToml => "simfacility_toml",
             Target::CalibrateToml => "calibrate_toml",
+            Target::DatasetSpec => "dataset_spec",
         }
     }
 
@@ -116,6 +119,7 @@ impl Target {
             Target::Responsivity => vec![s(RESPONSIVITY_SEED.as_bytes())],
             Target::SimFacilityToml => vec![s(include_bytes!("../configs/simfacility.toml"))],
             Target::CalibrateToml => vec![s(include_bytes!("../configs/facility_calibrate.toml"))],
+            Target::DatasetSpec => vec![s(DATASET_SEED.as_bytes())],
         }
     }
 
@@ -162,6 +166,13 @@ impl Target {
             Target::CalibrateToml => {
                 crate::calibration::config::CalibrateConfig::parse(&text, name, 8).is_ok()
             }
+            // The spec names `scene.toml` beside it: the self-contained seed scene.
+            Target::DatasetSpec => {
+                let scene = scratch.join("scene.toml");
+                (scene.is_file() || std::fs::write(&scene, SCENE_SEED).is_ok())
+                    && crate::dataset::Spec::from_toml(&text, &scratch.join("spec.toml"), None)
+                        .is_ok_and(|s| s.item(s.count - 1).index + 1 == s.count)
+            }
         }
     }
 }
@@ -192,6 +203,21 @@ const DARK_MODEL_SEED: &str = "camera = \"cam\"\nresolution = [4, 4]\nsaturation
 /// A camera responsivity file as `sim-lab` writes it.
 const RESPONSIVITY_SEED: &str = "responsivity_dn_per_s_per_w_m2_sr = 1.25e6\n\
 uncertainty_k2_percent = 0.5\nregion_px = [40, 40, 48, 48]\n";
+/// A dataset spec over [`SCENE_SEED`] (written beside it as `scene.toml`).
+const DATASET_SEED: &str = r#"[dataset]
+scene = "scene.toml"
+count = 8
+seed = 2026
+out = "out"
+outputs = ["image", "labels"]
+
+[poses]
+distance = [4.0e7, 9.0e7]
+phase_deg = [10.0, 120.0]
+roll_deg = [0.0, 360.0]
+jitter_deg = 0.5
+random_body_attitude = true
+"#;
 
 /// A scene that reads no file.
 const SCENE_SEED: &str = r#"[camera]

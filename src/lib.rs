@@ -33,6 +33,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod calibration;
+pub mod dataset;
 pub mod ephemeris;
 pub mod error;
 pub mod facility;
@@ -41,6 +42,7 @@ pub mod figures;
 pub mod fuzzing;
 pub mod infile;
 pub mod instruments;
+pub mod labels;
 pub mod optics;
 pub mod outfile;
 pub mod planner;

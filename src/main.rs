@@ -40,6 +40,10 @@ enum Command {
         /// Replace an earlier render in `--out`.
         #[arg(long)]
         overwrite: bool,
+        /// Also write the exact labels (masks, depth, normals, latitude and
+        /// longitude, labels.json, coco.json; docs/DATASETS.md).
+        #[arg(long)]
+        labels: bool,
     },
     /// Time the renderer against its converged reference (speed vs error).
     Bench {
@@ -115,6 +119,9 @@ enum Command {
     /// Draw the timing figure of a frame log: DIR/timing.png (latency
     /// over time with missed deadlines, histogram with p50/p99).
     PlotLog(cli::plot_log::PlotLogArgs),
+    /// Render a dataset (or this process's shard of it) from a spec, or
+    /// `--merge` the shards (docs/DATASETS.md).
+    Dataset(cli::dataset::DatasetArgs),
     /// Validate against real flight images.
     #[command(subcommand)]
     Validate(ValidateCommand),
@@ -163,13 +170,22 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => cli::calibrate::calibrate(&args),
         Command::PlotLog(args) => cli::plot_log::plot_log(&args),
         Command::SimLab(args) => cli::sim_lab::sim_lab(&args),
+        Command::Dataset(args) => cli::dataset::dataset(&args),
         Command::Render {
             scene,
             out,
             caps_per_pixel,
             max_pixel_error,
             overwrite,
-        } => cli::render(&scene, &out, caps_per_pixel, max_pixel_error, overwrite),
+            labels,
+        } => cli::render(
+            &scene,
+            &out,
+            caps_per_pixel,
+            max_pixel_error,
+            overwrite,
+            labels,
+        ),
         Command::Bench {
             scene,
             phases,

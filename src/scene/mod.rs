@@ -979,3 +979,16 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
         transmission: response(&c.transmission, base, "camera.transmission")?,
     })
 }
+
+/// The `state.epoch` text of a scene file, if it gives one (the labels
+/// record it; the scene itself keeps only the poses it implies).
+pub fn epoch_text(path: &Path) -> Result<Option<String>> {
+    let text = crate::infile::read_text_bounded(path, crate::infile::CONFIG_LIMIT)?;
+    let table: toml::Table =
+        toml::from_str(&text).map_err(|e| Error::parse(path, toml_message(&text, &e)))?;
+    Ok(table
+        .get("state")
+        .and_then(|s| s.get("epoch"))
+        .and_then(|e| e.as_str())
+        .map(str::to_string))
+}
