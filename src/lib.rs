@@ -46,6 +46,7 @@ pub mod radiometry;
 pub mod render;
 pub mod render_settings;
 pub mod scene;
+pub mod sensor;
 pub mod simfacility;
 pub mod utc;
 pub mod validate;
