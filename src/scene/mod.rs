@@ -1000,12 +1000,11 @@ pub const MAX_IMAGE_BYTES: f64 = 2.0 * 1024.0 * 1024.0 * 1024.0;
 /// Bytes per pixel a render holds: the renderer's flux and solid angles,
 /// radiance, effective radiance, electron rate and electrons (f32 each),
 /// DN and its PNG copy (u16 each), the preview (u8), the interior mask, the
-/// sensor's PRNU and DSNU maps (f32) and its charge (f64), and one f32
-/// accumulation buffer per worker thread.
-pub fn image_bytes_per_pixel() -> f64 {
-    let threads = rayon::current_num_threads().max(1) as f64;
-    6.0 * 4.0 + 2.0 * 2.0 + 1.0 + 1.0 + 2.0 * 4.0 + 8.0 + 4.0 * threads
-}
+/// sensor's PRNU and DSNU maps (f32) and its charge (f64): 46, rounded up.
+/// The workers' accumulation buffers (one per thread, over the body's
+/// region only) come on top; they are left out so the bound does not
+/// depend on the machine.
+pub const IMAGE_BYTES_PER_PIXEL: f64 = 48.0;
 
 /// `camera.resolution` bounded by the memory its images imply, before
 /// anything is allocated.
@@ -1016,7 +1015,7 @@ fn check_resolution(width: usize, height: usize) -> Result<()> {
             "must be between 1 and 65536 px",
         ));
     }
-    let per_pixel = image_bytes_per_pixel();
+    let per_pixel = IMAGE_BYTES_PER_PIXEL;
     let bytes = (width * height) as f64 * per_pixel;
     if bytes > MAX_IMAGE_BYTES {
         return Err(Error::invalid(
