@@ -2,6 +2,7 @@
 
 mod bench;
 pub mod bench_plot;
+pub mod expose;
 pub mod calibrate;
 pub mod plot_log;
 pub mod sim_lab;

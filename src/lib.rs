@@ -35,6 +35,7 @@
 pub mod calibration;
 pub mod ephemeris;
 pub mod error;
+pub mod expose;
 pub mod facility;
 pub mod figures;
 pub mod fuzzing;
