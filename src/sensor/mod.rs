@@ -6,7 +6,8 @@
 //! 1. light mean μ_k = PRNU_k · (rate_k · t + smear_k), smear_k =
 //!    `transfer_time` / height · Σ_column rate (frame transfer: every pixel
 //!    crosses its whole column while the shutter is open);
-//! 2. charge q_k = Poisson(dark_current · t) + Poisson(μ_k) + DSNU_k;
+//! 2. charge q_k = Poisson(dark_current · t) + Poisson(μ_k) + DSNU_k (one
+//!    Poisson draw of the summed mean: the same distribution);
 //! 3. optional blooming: charge above the full well spills along the
 //!    column, half up and half down, into pixels with room (conserved
 //!    unless the whole column is full);
@@ -26,10 +27,8 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use rng::Rng;
 
-/// Random stream of the PRNU map.
-const PRNU_STREAM: u64 = 1;
-/// Random stream of the DSNU map.
-const DSNU_STREAM: u64 = 2;
+/// Random stream of the PRNU and DSNU maps.
+const MAP_STREAM: u64 = 1;
 /// Random streams of frames start here (+ frame index).
 const FRAME_STREAM: u64 = 1 << 32;
 
@@ -146,22 +145,17 @@ impl Sensor {
     /// A sensor of `width` × `height` pixels with its seeded maps.
     pub fn new(params: SensorParams, readout: Readout, width: usize, height: usize) -> Sensor {
         let n = width * height;
-        let map = |stream: u64, f: &(dyn Fn(f64) -> f64 + Sync)| -> Vec<f32> {
-            (0..n as u64)
-                .into_par_iter()
-                .map(|k| f(Rng::new(params.seed, stream, k).normal()) as f32)
-                .collect()
-        };
-        let prnu = if params.prnu > 0.0 {
-            map(PRNU_STREAM, &|z| (1.0 + params.prnu * z).max(0.0))
-        } else {
-            vec![1.0; n]
-        };
-        let dsnu = if params.dsnu > 0.0 {
-            map(DSNU_STREAM, &|z| params.dsnu * z)
-        } else {
-            vec![0.0; n]
-        };
+        let (mut prnu, mut dsnu) = (vec![1.0f32; n], vec![0.0f32; n]);
+        if params.prnu > 0.0 || params.dsnu > 0.0 {
+            prnu.par_iter_mut()
+                .zip(dsnu.par_iter_mut())
+                .enumerate()
+                .for_each(|(k, (g, o))| {
+                    let mut rng = Rng::new(params.seed, MAP_STREAM, k as u64);
+                    *g = (1.0 + params.prnu * rng.normal_fast()).max(0.0) as f32;
+                    *o = (params.dsnu * rng.normal_fast()) as f32;
+                });
+        }
         Sensor {
             params,
             readout,
@@ -191,27 +185,72 @@ impl Sensor {
     /// `rate` [e⁻/s] per pixel (row-major, before PRNU).
     pub fn expose(&self, rate: &[f32], exposure: f64, frame: u64) -> SensorFrame {
         assert_eq!(rate.len(), self.width * self.height, "rate image size");
-        let mut charge = self.collect_charge(rate, exposure, frame);
-        if self.params.blooming {
-            bloom(&mut charge, self.width, self.readout.full_well);
-        }
-        self.read_out(&charge, frame)
+        let smear = self.smear(rate);
+        let w = self.width;
+        let dark = DarkDraw::new(self.params.dark_current * exposure);
+        let pixel = |k: usize| self.collect(rate[k], smear[k % w], &dark, exposure, frame, k);
+        let dn: Vec<u16> = if self.params.blooming {
+            let (mut charge, read): (Vec<f64>, Vec<f32>) =
+                (0..rate.len()).into_par_iter().map(pixel).unzip();
+            bloom(&mut charge, w, self.readout.full_well);
+            charge
+                .par_iter()
+                .zip(&read)
+                .map(|(&q, &r)| self.digitise(q + r as f64))
+                .collect()
+        } else {
+            (0..rate.len())
+                .into_par_iter()
+                .map(|k| {
+                    let (q, r) = pixel(k);
+                    self.digitise(q + r as f64)
+                })
+                .collect()
+        };
+        let r = &self.readout;
+        let sat_dn = (self.params.offset + r.gain * r.full_well).round().min(r.max_dn());
+        let saturated = dn.par_iter().filter(|&&v| v as f64 >= sat_dn).count() as u64;
+        SensorFrame { dn, saturated }
     }
 
-    /// Steps 1–2: smear, PRNU, dark and shot noise, DSNU [e⁻].
-    fn collect_charge(&self, rate: &[f32], exposure: f64, frame: u64) -> Vec<f64> {
+    /// Steps 1, 2 and the draw of 4 for pixel `k`: its charge (light and
+    /// dark electrons, one Poisson draw of their summed mean, plus DSNU)
+    /// and its read noise [e⁻].
+    #[inline]
+    fn collect(
+        &self,
+        rate: f32,
+        smear: f64,
+        dark: &DarkDraw,
+        exposure: f64,
+        frame: u64,
+        k: usize,
+    ) -> (f64, f32) {
         let p = &self.params;
-        let w = self.width;
-        let smear = self.smear(rate);
-        let dark = p.dark_current * exposure;
-        (0..rate.len())
-            .into_par_iter()
-            .map(|k| {
-                let mut rng = Rng::new(p.seed, FRAME_STREAM + frame, k as u64);
-                let light = self.prnu[k] as f64 * (rate[k] as f64 * exposure + smear[k % w]);
-                rng.poisson(dark) + rng.poisson(light) + self.dsnu[k] as f64
-            })
-            .collect()
+        let mut rng = Rng::new(p.seed, FRAME_STREAM + frame, k as u64);
+        let light = self.prnu[k] as f64 * (rate as f64 * exposure + smear);
+        let electrons = match dark.limit {
+            // A dark pixel (most of a sky frame): e^(−mean) once per frame.
+            Some(limit) if light == 0.0 => rng.poisson_small(limit),
+            _ => rng.poisson_fast(dark.mean + light),
+        };
+        let charge = electrons + self.dsnu[k] as f64;
+        let read = if p.read_noise > 0.0 {
+            p.read_noise * rng.normal_fast()
+        } else {
+            0.0
+        };
+        (charge, read as f32)
+    }
+
+    /// Step 5: full well, gain, offset, rounding and the ADC range.
+    #[inline]
+    fn digitise(&self, electrons: f64) -> u16 {
+        let r = &self.readout;
+        (self.params.offset + r.gain * electrons.min(r.full_well))
+            .round()
+            .clamp(0.0, r.max_dn())
+            .min(u16::MAX as f64) as u16
     }
 
     /// Smear electrons per column: transfer_time / height · Σ_column rate.
@@ -221,38 +260,28 @@ impl Sensor {
             return vec![0.0; w];
         }
         let per_row = self.params.transfer_time / h as f64;
-        (0..w)
-            .into_par_iter()
-            .map(|i| per_row * (0..h).map(|j| rate[j * w + i] as f64).sum::<f64>())
-            .collect()
+        let mut sums = vec![0.0f64; w];
+        for row in rate.chunks(w) {
+            for (s, &r) in sums.iter_mut().zip(row) {
+                *s += r as f64;
+            }
+        }
+        sums.iter().map(|s| s * per_row).collect()
     }
+}
 
-    /// Steps 4–5: read noise, full well, gain, offset, rounding, ADC.
-    fn read_out(&self, charge: &[f64], frame: u64) -> SensorFrame {
-        let p = &self.params;
-        let r = &self.readout;
-        let max_dn = r.max_dn();
-        // The read noise takes draws after the charge's: a second stream.
-        let stream = FRAME_STREAM + frame + (1 << 31);
-        let dn: Vec<u16> = charge
-            .par_iter()
-            .enumerate()
-            .map(|(k, &q)| {
-                let read = if p.read_noise > 0.0 {
-                    p.read_noise * Rng::new(p.seed, stream, k as u64).normal()
-                } else {
-                    0.0
-                };
-                let e = (q + read).min(r.full_well);
-                (p.offset + r.gain * e)
-                    .round()
-                    .clamp(0.0, max_dn)
-                    .min(u16::MAX as f64) as u16
-            })
-            .collect();
-        let sat_dn = (p.offset + r.gain * r.full_well).round().min(max_dn);
-        let saturated = dn.iter().filter(|&&v| v as f64 >= sat_dn).count() as u64;
-        SensorFrame { dn, saturated }
+/// The dark charge's mean over one exposure and, below 30 e⁻, its e^(−mean).
+struct DarkDraw {
+    mean: f64,
+    limit: Option<f64>,
+}
+
+impl DarkDraw {
+    fn new(mean: f64) -> DarkDraw {
+        DarkDraw {
+            mean,
+            limit: (mean < 30.0).then(|| (-mean).exp()),
+        }
     }
 }
 
@@ -262,13 +291,21 @@ impl Sensor {
 /// conserved unless the whole column fills (the rest is drained).
 pub fn bloom(charge: &mut [f64], width: usize, full_well: f64) {
     let height = charge.len() / width;
-    let mut columns: Vec<Vec<f64>> = (0..width)
-        .map(|i| (0..height).map(|j| charge[j * width + i]).collect())
+    // Only columns holding a pixel over the full well change.
+    let mut over = vec![false; width];
+    for row in charge.chunks(width) {
+        for (o, &q) in over.iter_mut().zip(row) {
+            *o |= q > full_well;
+        }
+    }
+    let mut columns: Vec<(usize, Vec<f64>)> = (0..width)
+        .filter(|&i| over[i])
+        .map(|i| (i, (0..height).map(|j| charge[j * width + i]).collect()))
         .collect();
     columns
         .par_iter_mut()
-        .for_each(|c| bloom_column(c, full_well));
-    for (i, c) in columns.iter().enumerate() {
+        .for_each(|(_, c)| bloom_column(c, full_well));
+    for (i, c) in &columns {
         for (j, &q) in c.iter().enumerate() {
             charge[j * width + i] = q;
         }
