@@ -2,8 +2,8 @@
 
 mod bench;
 pub mod bench_plot;
-pub mod expose;
 pub mod calibrate;
+pub mod expose;
 pub mod plot_log;
 pub mod sim_lab;
 

@@ -90,9 +90,9 @@ impl NoiseModel {
     /// The camera's: its `[camera.sensor]`, or the ideal detector's
     /// quantisation alone.
     pub fn of(camera: &Camera) -> NoiseModel {
-        let (dark, read, offset) = camera
-            .sensor
-            .map_or((0.0, 0.0, 0.0), |s| (s.dark_current, s.read_noise, s.offset));
+        let (dark, read, offset) = camera.sensor.map_or((0.0, 0.0, 0.0), |s| {
+            (s.dark_current, s.read_noise, s.offset)
+        });
         let k = camera.gain;
         NoiseModel {
             dark_current: dark,
@@ -154,7 +154,10 @@ pub fn expose_states(
     snr: f64,
 ) -> Result<Vec<StateBounds>> {
     if !(snr.is_finite() && snr > 0.0 && snr <= 1e6) {
-        return Err(Error::invalid("--snr", format!("must be in (0, 1e6], got {snr}")));
+        return Err(Error::invalid(
+            "--snr",
+            format!("must be in (0, 1e6], got {snr}"),
+        ));
     }
     let noise = NoiseModel::of(&scene.camera);
     let mut renderer = Renderer::new(scene.camera.pinhole.clone());

@@ -1299,7 +1299,9 @@ pub fn shaded_band(path: impl AsRef<Path>, fig: &ShadedBand) -> Result<()> {
                 ))
                 .map_err(|e| err(e.to_string()))?
                 .label(label.as_str())
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+                .legend(|(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2))
+                });
         }
         chart
             .configure_series_labels()

@@ -61,7 +61,12 @@ fn floor_by_bisection(rate: f64, snr: f64) -> f64 {
 
 /// The zero-phase Lambert scene (disk 39 px across, centred on a pixel).
 fn setup() -> common::Setup {
-    let s = common::Setup::new(&format!("{{ model = \"lambert\", albedo = {ALBEDO} }}"), 0.0, 10.0, 39.0);
+    let s = common::Setup::new(
+        &format!("{{ model = \"lambert\", albedo = {ALBEDO} }}"),
+        0.0,
+        10.0,
+        39.0,
+    );
     assert_eq!(s.resolution[0] % 2, 1, "odd: the centre is a pixel centre");
     s
 }
@@ -124,7 +129,8 @@ fn write_inputs(dir: &Path, s: &common::Setup) {
     std::fs::write(dir.join("scene.toml"), scene_text(s)).unwrap();
     let cam = s.camera_position();
     let q = common::look_at(cam, DVec3::ZERO);
-    let mut csv = String::from("t,cam_x,cam_y,cam_z,cam_qw,cam_qx,cam_qy,cam_qz,sun_x,sun_y,sun_z\n");
+    let mut csv =
+        String::from("t,cam_x,cam_y,cam_z,cam_qw,cam_qx,cam_qy,cam_qz,sun_x,sun_y,sun_z\n");
     for (t, au) in [(0.0, 1.0), (10.0, 2.0)] {
         csv += &format!(
             "{t},{:e},{:e},{:e},{},{},{},{},{:e},0,0\n",
@@ -154,12 +160,29 @@ fn bounds_follow_the_lambert_sphere_closed_form() {
     let saturation = (4095.0 - OFFSET) / GAIN;
     for (row, au) in rows.iter().zip([1.0, 2.0]) {
         let rate = centre_rate(&s, au);
-        eprintln!("{au} au: rate {:+.2e}, t_min {:+.2e}, t_max {:+.2e} relative", row[3] / rate - 1.0, row[4] / floor_by_bisection(rate, 10.0) - 1.0, row[5] * (rate + DARK) / saturation - 1.0);
-        assert!((row[3] / rate - 1.0).abs() < 1e-3, "rate {} vs {rate}", row[3]);
+        eprintln!(
+            "{au} au: rate {:+.2e}, t_min {:+.2e}, t_max {:+.2e} relative",
+            row[3] / rate - 1.0,
+            row[4] / floor_by_bisection(rate, 10.0) - 1.0,
+            row[5] * (rate + DARK) / saturation - 1.0
+        );
+        assert!(
+            (row[3] / rate - 1.0).abs() < 1e-3,
+            "rate {} vs {rate}",
+            row[3]
+        );
         let t_min = floor_by_bisection(rate, 10.0);
         let t_max = saturation / (rate + DARK);
-        assert!((row[4] / t_min - 1.0).abs() < 1e-3, "t_min {} vs {t_min}", row[4]);
-        assert!((row[5] / t_max - 1.0).abs() < 1e-3, "t_max {} vs {t_max}", row[5]);
+        assert!(
+            (row[4] / t_min - 1.0).abs() < 1e-3,
+            "t_min {} vs {t_min}",
+            row[4]
+        );
+        assert!(
+            (row[5] / t_max - 1.0).abs() < 1e-3,
+            "t_max {} vs {t_max}",
+            row[5]
+        );
         assert_eq!(row[6], 1.0);
     }
     let png = image::open(dir.path().join("out/exposure.png")).unwrap();

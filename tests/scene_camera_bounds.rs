@@ -17,7 +17,11 @@ fn scene_text(edit: impl Fn(String) -> String) -> String {
 
 fn with_resolution(w: usize, h: usize) -> String {
     scene_text(|t| {
-        let line = t.lines().find(|l| l.starts_with("resolution")).unwrap().to_string();
+        let line = t
+            .lines()
+            .find(|l| l.starts_with("resolution"))
+            .unwrap()
+            .to_string();
         t.replace(&line, &format!("resolution = [{w}, {h}]"))
     })
 }
@@ -75,13 +79,24 @@ fn a_band_response_of_zero_is_an_error() {
     // A QE table that is zero only outside the band: the response is zero
     // over the band (tables are zero beyond their rows).
     let dir = tempfile::tempdir().unwrap();
-    std::fs::write(dir.path().join("qe.csv"), "wavelength_nm,qe\n900,0.5\n1000,0.5\n").unwrap();
+    std::fs::write(
+        dir.path().join("qe.csv"),
+        "wavelength_nm,qe\n900,0.5\n1000,0.5\n",
+    )
+    .unwrap();
     let text = scene_text(|t| t.replace("bits = 12", "bits = 12\nquantum_efficiency = \"qe.csv\""));
     let err = Scene::from_toml(&text, &dir.path().join("cam.toml"))
         .expect_err("QE outside the band accepted")
         .to_string();
-    assert!(err.contains("camera.quantum_efficiency") && !err.contains('\n'), "{err}");
+    assert!(
+        err.contains("camera.quantum_efficiency") && !err.contains('\n'),
+        "{err}"
+    );
     // The same table over the band renders.
-    std::fs::write(dir.path().join("qe.csv"), "wavelength_nm,qe\n400,0.5\n900,0.5\n").unwrap();
+    std::fs::write(
+        dir.path().join("qe.csv"),
+        "wavelength_nm,qe\n400,0.5\n900,0.5\n",
+    )
+    .unwrap();
     assert!(Scene::from_toml(&text, &dir.path().join("cam.toml")).is_ok());
 }

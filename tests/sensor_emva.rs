@@ -114,7 +114,10 @@ fn photon_transfer_recovers_gain_read_noise_and_dark_current() {
     let rate = &images.electron_rate;
     let max_rate = rate.iter().copied().fold(0.0f32, f32::max) as f64;
     let min_rate = rate.iter().copied().fold(f32::INFINITY, f32::min) as f64;
-    assert!(min_rate > 0.995 * max_rate, "not flat: {min_rate} .. {max_rate}");
+    assert!(
+        min_rate > 0.995 * max_rate,
+        "not flat: {min_rate} .. {max_rate}"
+    );
     let sensor = sensor_of(&scene);
     let dark = vec![0.0f32; rate.len()];
 
@@ -130,7 +133,10 @@ fn photon_transfer_recovers_gain_read_noise_and_dark_current() {
     // Photon transfer: light levels from 2 % to 80 % of the full well.
     let mut signal = Vec::new();
     let mut variance = Vec::new();
-    for (i, fill) in [0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.65, 0.8].iter().enumerate() {
+    for (i, fill) in [0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.65, 0.8]
+        .iter()
+        .enumerate()
+    {
         let t = fill * FULL_WELL / max_rate;
         let (mu, var) = pair_stats(&sensor, rate, t, 2 * i as u64);
         let (mu_dark, var_dark) = pair_stats(&sensor, &dark, t, 50 + 2 * i as u64);
@@ -252,11 +258,23 @@ fn blooming_conserves_charge_in_a_render() {
 fn bad_sensor_keys_are_one_line_errors_naming_the_key() {
     let good = flat_text(16, 1, "");
     for (from, to, key) in [
-        ("read_noise = 8", "read_noise = -1", "camera.sensor.read_noise"),
+        (
+            "read_noise = 8",
+            "read_noise = -1",
+            "camera.sensor.read_noise",
+        ),
         ("prnu = 0.01", "prnu = 1.5", "camera.sensor.prnu"),
         ("offset = 100", "offset = 70000", "camera.sensor.offset"),
-        ("dark_current = 200", "dark_current = nan", "camera.sensor.dark_current"),
-        ("dsnu = 3.0", "dsnu = 3.0\ntransfer_time = inf", "camera.sensor.transfer_time"),
+        (
+            "dark_current = 200",
+            "dark_current = nan",
+            "camera.sensor.dark_current",
+        ),
+        (
+            "dsnu = 3.0",
+            "dsnu = 3.0\ntransfer_time = inf",
+            "camera.sensor.transfer_time",
+        ),
         ("dsnu = 3.0", "dsnu = 3.0\nsmear = 1", "smear"),
     ] {
         assert!(good.contains(from), "{from}");
@@ -264,7 +282,10 @@ fn bad_sensor_keys_are_one_line_errors_naming_the_key() {
         let err = Scene::from_toml(&text, Path::new("flat.toml"))
             .expect_err(to)
             .to_string();
-        assert!(err.contains(key) && err.contains("flat.toml"), "{to}: {err}");
+        assert!(
+            err.contains(key) && err.contains("flat.toml"),
+            "{to}: {err}"
+        );
         assert!(!err.contains('\n'), "{err}");
     }
 }

@@ -80,7 +80,8 @@ fn states(scene: &Scene, trajectory: Option<&Path>) -> Result<Vec<(f64, State)>>
 }
 
 fn write_csv(path: &Path, bounds: &[StateBounds]) -> Result<()> {
-    let mut text = String::from("t_s,range_m,phase_deg,feature_rate_e_per_s,t_min_s,t_max_s,open\n");
+    let mut text =
+        String::from("t_s,range_m,phase_deg,feature_rate_e_per_s,t_min_s,t_max_s,open\n");
     for s in bounds {
         let (rate, lo, hi, open) = match s.bounds {
             Some(b) => (b.rate, b.t_min, b.t_max, b.is_open()),
@@ -104,7 +105,9 @@ fn draw(
     let rows = bounds
         .iter()
         .map(|s| {
-            let b = s.bounds.map_or((f64::NAN, f64::NAN), |b| (b.t_min, b.t_max));
+            let b = s
+                .bounds
+                .map_or((f64::NAN, f64::NAN), |b| (b.t_min, b.t_max));
             (s.t, b.0, b.1)
         })
         .collect();

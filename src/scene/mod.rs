@@ -1038,7 +1038,8 @@ fn check_band_response(qe: &Response, transmission: &Response, band: [f64; 2]) -
     if integral.is_finite() && integral > 0.0 {
         return Ok(());
     }
-    let qe_alone = crate::radiometry::spectrum::response_integral(qe, &Response::Constant(1.0), band);
+    let qe_alone =
+        crate::radiometry::spectrum::response_integral(qe, &Response::Constant(1.0), band);
     let key = if qe_alone > 0.0 {
         "camera.transmission"
     } else {

@@ -208,7 +208,9 @@ impl Sensor {
                 .collect()
         };
         let r = &self.readout;
-        let sat_dn = (self.params.offset + r.gain * r.full_well).round().min(r.max_dn());
+        let sat_dn = (self.params.offset + r.gain * r.full_well)
+            .round()
+            .min(r.max_dn());
         let saturated = dn.par_iter().filter(|&&v| v as f64 >= sat_dn).count() as u64;
         SensorFrame { dn, saturated }
     }
