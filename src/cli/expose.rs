@@ -25,7 +25,9 @@ pub struct ExposeArgs {
     /// scene's).
     #[arg(long)]
     pub trajectory: Option<PathBuf>,
-    /// The feature to expose for: disk-mean, brightest, darkest-lit.
+    /// The feature to expose for: disk-mean (mean over pixels with
+    /// signal), brightest, darkest-lit (the darkest pixel with at least
+    /// 1 % of the brightest's rate).
     #[arg(long, default_value = "disk-mean")]
     pub feature: String,
     /// Signal-to-noise ratio of the noise floor.
