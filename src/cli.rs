@@ -4,6 +4,7 @@ mod bench;
 pub mod bench_plot;
 pub mod calibrate;
 pub mod dataset;
+pub mod expose;
 pub mod plot_log;
 pub mod sim_lab;
 

@@ -1286,3 +1286,118 @@ mod tests {
         }
     }
 }
+
+/// A band between two curves over x, shaded, on a log y axis, with
+/// optional horizontal reference lines: e.g. the exposures between a noise
+/// floor and saturation along a trajectory.
+#[derive(Debug, Clone)]
+pub struct ShadedBand {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    /// (x, lower, upper); the band is shaded where lower < upper.
+    pub rows: Vec<(f64, f64, f64)>,
+    pub lower_label: String,
+    pub upper_label: String,
+    pub band_label: String,
+    /// Labelled horizontal lines (y, label).
+    pub lines: Vec<(f64, String)>,
+    /// Pixels.
+    pub size: (u32, u32),
+}
+
+/// Writes a [`ShadedBand`] figure as PNG. A single row is drawn as a band
+/// one unit wide around its x.
+pub fn shaded_band(path: impl AsRef<Path>, fig: &ShadedBand) -> Result<()> {
+    let path = path.as_ref();
+    let err = draw_err(path);
+    let rows: Vec<(f64, f64, f64)> = if fig.rows.len() == 1 {
+        let (x, lo, hi) = fig.rows[0];
+        vec![(x - 0.5, lo, hi), (x + 0.5, lo, hi)]
+    } else {
+        fig.rows.clone()
+    };
+    let ok = |v: f64| v.is_finite() && v > 0.0;
+    let ys = rows
+        .iter()
+        .flat_map(|r| [r.1, r.2])
+        .chain(fig.lines.iter().map(|l| l.0))
+        .filter(|&v| ok(v));
+    let (y0, y1) = span(ys, true);
+    // Headroom for the legend above the data.
+    let (y0, y1) = (floor_decade(y0), y1 * (y1 / y0).powf(LEGEND_HEADROOM));
+    let (x0, x1) = span(rows.iter().map(|r| r.0), false);
+    draw_png(path, fig.size, |root| {
+        let mut chart = ChartBuilder::on(root)
+            .caption(&fig.title, (FONT_NAME, 22))
+            .margin(12)
+            .x_label_area_size(42)
+            .y_label_area_size(80)
+            .build_cartesian_2d(x0..x1, (y0..y1).log_scale())
+            .map_err(|e| err(e.to_string()))?;
+        chart
+            .configure_mesh()
+            .x_desc(fig.x_label.as_str())
+            .y_desc(fig.y_label.as_str())
+            .x_label_formatter(&|v: &f64| tick(*v, x1 - x0))
+            .y_label_formatter(&|v: &f64| tick_log(*v))
+            .label_style((FONT_NAME, 14))
+            .axis_desc_style((FONT_NAME, 16))
+            .draw()
+            .map_err(|e| err(e.to_string()))?;
+        let open: Vec<(f64, f64, f64)> = rows
+            .iter()
+            .copied()
+            .filter(|r| ok(r.1) && ok(r.2))
+            .map(|(x, lo, hi)| (x, lo, hi.max(lo)))
+            .collect();
+        let mut polygon: Vec<(f64, f64)> = open.iter().map(|r| (r.0, r.1)).collect();
+        polygon.extend(open.iter().rev().map(|r| (r.0, r.2)));
+        let shade = PALETTE[2].mix(0.3);
+        chart
+            .draw_series(std::iter::once(Polygon::new(polygon, shade.filled())))
+            .map_err(|e| err(e.to_string()))?
+            .label(fig.band_label.as_str())
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 18, y + 6)], shade.filled()));
+        for (label, colour, pick) in [
+            (&fig.lower_label, PALETTE[0], 1usize),
+            (&fig.upper_label, PALETTE[1], 2usize),
+        ] {
+            let pts: Vec<(f64, f64)> = rows
+                .iter()
+                .map(|r| (r.0, if pick == 1 { r.1 } else { r.2 }))
+                .filter(|p| ok(p.1))
+                .collect();
+            chart
+                .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
+                .map_err(|e| err(e.to_string()))?
+                .label(label.as_str())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(3))
+                });
+        }
+        for (y, label) in fig.lines.iter().filter(|l| ok(l.0)) {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    vec![(x0, *y), (x1, *y)],
+                    8,
+                    5,
+                    BLACK.stroke_width(2),
+                ))
+                .map_err(|e| err(e.to_string()))?
+                .label(label.as_str())
+                .legend(|(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2))
+                });
+        }
+        chart
+            .configure_series_labels()
+            .label_font((FONT_NAME, 14))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()
+            .map_err(|e| err(e.to_string()))?;
+        Ok(())
+    })
+}

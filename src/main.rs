@@ -1,4 +1,4 @@
-//! `optistim` command line: render, run, calibrate, bench, plot-log, validate.
+//! `optistim` command line: render, expose, run, calibrate, bench, plot-log, validate.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -45,6 +45,11 @@ enum Command {
         #[arg(long)]
         labels: bool,
     },
+    /// Exposure bounds of a scene or of each state of a trajectory: the
+    /// exposures keeping a feature between the noise floor at an SNR and
+    /// saturation (DIR/exposure.csv, DIR/exposure.png; exit status 2 when
+    /// no single exposure serves every state).
+    Expose(cli::expose::ExposeArgs),
     /// Time the renderer against its converged reference (speed vs error).
     Bench {
         /// Scene file (TOML); default: the benchmark Moon.
@@ -167,6 +172,7 @@ fn main() -> ExitCode {
     let args = Args::parse();
     let result = match args.command {
         Command::Run(args) => return finish(cli::run(&args)),
+        Command::Expose(args) => return finish(cli::expose::expose(&args)),
         Command::Calibrate(args) => cli::calibrate::calibrate(&args),
         Command::PlotLog(args) => cli::plot_log::plot_log(&args),
         Command::SimLab(args) => cli::sim_lab::sim_lab(&args),

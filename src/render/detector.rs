@@ -19,6 +19,7 @@ use crate::radiometry::spectrum::{
     band_integrals, electron_response, response_integral, BandIntegral,
 };
 use crate::scene::{Body, Scene, State};
+use crate::sensor::{Sensor, SensorParams};
 
 /// Images and figures of one rendered scene.
 #[derive(Clone, Debug)]
@@ -31,7 +32,11 @@ pub struct SceneImages {
     pub radiance_effective: Vec<f32>,
     /// Electrons collected over the exposure, clipped at the full well.
     pub electrons: Vec<f32>,
-    /// Quantised DN.
+    /// Mean electron rate per pixel [e⁻/s] (pupil and cos⁴ included, no
+    /// clipping): what the sensor chain and `optistim expose` start from.
+    pub electron_rate: Vec<f32>,
+    /// Quantised DN: the ideal detector's, or the sensor chain's when the
+    /// camera has `[camera.sensor]`.
     pub dn: Vec<u16>,
     /// Scalar results.
     pub summary: Summary,
@@ -76,6 +81,9 @@ pub struct Summary {
     pub apparent_radius_deg: f64,
     /// Apparent radius [px] (at the principal point scale).
     pub apparent_radius_px: f64,
+    /// The sensor chain's frame, when the camera has `[camera.sensor]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sensor: Option<SensorSummary>,
     /// For a body marked `lime_reference`: LIME's disk irradiance over the
     /// band and the render's over it (`irradiance_all_caps_w_m2`).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -84,6 +92,17 @@ pub struct Summary {
     /// their measured error and why ([`crate::planner`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub plan: Option<crate::fidelity::Plan>,
+}
+
+/// What the sensor chain did (`summary.json`, `sensor`).
+#[derive(Clone, Debug, Serialize)]
+pub struct SensorSummary {
+    /// The sensor's parameters.
+    pub params: SensorParams,
+    /// Frame index of the noise draw.
+    pub frame: u64,
+    /// Wall-clock time of the chain (maps and frame) [ms].
+    pub sensor_ms: f64,
 }
 
 /// Pixel solid angles and off-axis cosines of one camera, computed once.
@@ -165,7 +184,8 @@ pub fn render_scene(
     } else {
         0.0
     };
-    let d = detect(scene, pixels, &spectral, to_effective);
+    let mut d = detect(scene, pixels, &spectral, to_effective);
+    let sensor = cam.sensor.map(|params| apply_sensor(scene, params, &mut d));
     let effective_all_caps = spectral.all_caps_electrons * to_effective;
     let range = (scene.state.camera_position - scene.state.body_position).length();
     let apparent = (scene.body.radius / range).asin();
@@ -179,6 +199,7 @@ pub fn render_scene(
         radiance: spectral.radiance,
         radiance_effective: d.radiance_effective,
         electrons: d.electrons,
+        electron_rate: d.electron_rate,
         dn: d.dn,
         summary: Summary {
             phase_angle_deg: spectral.stats.phase_angle.to_degrees(),
@@ -196,6 +217,7 @@ pub fn render_scene(
             band_irradiance_1au_w_m2: band_irradiance,
             apparent_radius_deg: apparent.to_degrees(),
             apparent_radius_px: apparent.tan() * pin.fx,
+            sensor,
             lime: lime_comparison(scene, spectral.all_caps, effective_all_caps),
             plan: None,
         },
@@ -266,6 +288,7 @@ fn render_bands(
 struct Detected {
     radiance_effective: Vec<f32>,
     electrons: Vec<f32>,
+    electron_rate: Vec<f32>,
     dn: Vec<u16>,
     /// Σ L Ω cos θ [W m⁻²].
     irradiance: f64,
@@ -295,6 +318,7 @@ fn detect(
     let mut d = Detected {
         radiance_effective: vec![0.0f32; n],
         electrons: vec![0.0f32; n],
+        electron_rate: vec![0.0f32; n],
         dn: vec![0u16; n],
         ..Default::default()
     };
@@ -313,7 +337,9 @@ fn detect(
             d.radiance_effective[k] = effective as f32;
             d.effective_irradiance += effective * omega * cos_los;
             d.weighted += rate * cos_los;
-            let mut e = cam.exposure * pupil * dir.z * rate;
+            let e_rate = pupil * dir.z * rate;
+            d.electron_rate[k] = e_rate as f32;
+            let mut e = cam.exposure * e_rate;
             // Not `min`: a NaN must stay NaN for `check_finite` to see it.
             if e >= cam.full_well {
                 e = cam.full_well;
@@ -329,6 +355,23 @@ fn detect(
         }
     }
     d
+}
+
+/// Replaces the ideal detector's DN by frame 0 of the sensor chain.
+fn apply_sensor(scene: &Scene, params: SensorParams, d: &mut Detected) -> SensorSummary {
+    let start = Instant::now();
+    let cam = &scene.camera;
+    let pin = &cam.pinhole;
+    let sensor = Sensor::new(params, cam.readout(), pin.width, pin.height);
+    let frame = sensor.expose(&d.electron_rate, cam.exposure, 0);
+    d.peak_dn = frame.dn.iter().copied().max().unwrap_or(0) as u32;
+    d.saturated = frame.saturated;
+    d.dn = frame.dn;
+    SensorSummary {
+        params,
+        frame: 0,
+        sensor_ms: start.elapsed().as_secs_f64() * 1e3,
+    }
 }
 
 /// The render's disk irradiance against LIME, for a body that stands for
@@ -404,6 +447,7 @@ impl SceneImages {
             ("radiance", &self.radiance),
             ("camera-effective radiance", &self.radiance_effective),
             ("electrons", &self.electrons),
+            ("electron rate", &self.electron_rate),
         ];
         let bad = scalars
             .iter()

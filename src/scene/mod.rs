@@ -18,6 +18,7 @@ use crate::error::{toml_message, Error, Result};
 use crate::radiometry::reflectance::{MappedParameter, Reflectance, ReflectanceConfig};
 use crate::radiometry::spectrum::{Response, SolarSpectrum, Table};
 use crate::render_settings::RenderSettings;
+use crate::sensor::{Readout, SensorFile, SensorParams};
 pub use camera::Pinhole;
 pub use maps::{EquirectMap, NormalMap};
 
@@ -46,9 +47,21 @@ pub struct Camera {
     pub quantum_efficiency: Response,
     /// Optical transmission.
     pub transmission: Response,
+    /// The EMVA 1288 sensor chain (`[camera.sensor]`); None: the ideal
+    /// detector of Eq. 2.
+    pub sensor: Option<SensorParams>,
 }
 
 impl Camera {
+    /// Full well, gain and bits: the readout the sensor chain ends in.
+    pub fn readout(&self) -> Readout {
+        Readout {
+            full_well: self.full_well,
+            gain: self.gain,
+            bits: self.bits,
+        }
+    }
+
     /// Entrance pupil area [m²].
     pub fn pupil_area(&self) -> f64 {
         let d = self.focal_length / self.f_number;
@@ -263,6 +276,7 @@ pub struct CameraFile {
     quantum_efficiency: ResponseFile,
     #[serde(default = "unit_response")]
     transmission: ResponseFile,
+    sensor: Option<SensorFile>,
 }
 
 #[derive(Deserialize, Clone, Debug)]
@@ -895,12 +909,7 @@ fn response(r: &ResponseFile, base: &Path, field: &str) -> Result<Response> {
 /// Build a camera from its `[camera]` table.
 pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
     let [width, height] = c.resolution;
-    if width == 0 || height == 0 || width > 65_536 || height > 65_536 {
-        return Err(Error::invalid(
-            "camera.resolution",
-            "must be between 1 and 65536 px",
-        ));
-    }
+    check_resolution(width, height)?;
     let pitch = within(c.pixel_pitch, 1e-8, 0.1, "camera.pixel_pitch")?;
     let focal_length = match (c.focal_length, c.fov_deg) {
         (Some(f), None) => within(f, 1e-5, 1e6, "camera.focal_length")?,
@@ -953,6 +962,10 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
         ));
     }
     let max_dn = 2f64.powi(c.bits as i32) - 1.0;
+    let sensor = c.sensor.as_ref().map(|s| s.check(max_dn)).transpose()?;
+    let quantum_efficiency = response(&c.quantum_efficiency, base, "camera.quantum_efficiency")?;
+    let transmission = response(&c.transmission, base, "camera.transmission")?;
+    check_band_response(&quantum_efficiency, &transmission, band)?;
     let gain = if c.gain > 0.0 {
         c.gain
     } else {
@@ -975,8 +988,9 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
         bits: c.bits,
         gain,
         band,
-        quantum_efficiency: response(&c.quantum_efficiency, base, "camera.quantum_efficiency")?,
-        transmission: response(&c.transmission, base, "camera.transmission")?,
+        quantum_efficiency,
+        transmission,
+        sensor,
     })
 }
 
@@ -991,4 +1005,64 @@ pub fn epoch_text(path: &Path) -> Result<Option<String>> {
         .and_then(|s| s.get("epoch"))
         .and_then(|e| e.as_str())
         .map(str::to_string))
+}
+
+/// Most memory a render's images may imply [bytes].
+pub const MAX_IMAGE_BYTES: f64 = 2.0 * 1024.0 * 1024.0 * 1024.0;
+
+/// Bytes per pixel a render holds: the renderer's flux and solid angles,
+/// radiance, effective radiance, electron rate and electrons (f32 each),
+/// DN and its PNG copy (u16 each), the preview (u8), the interior mask, the
+/// sensor's PRNU and DSNU maps (f32) and its charge (f64): 46, rounded up.
+/// The workers' accumulation buffers (one per thread, over the body's
+/// region only) come on top; they are left out so the bound does not
+/// depend on the machine.
+pub const IMAGE_BYTES_PER_PIXEL: f64 = 48.0;
+
+/// `camera.resolution` bounded by the memory its images imply, before
+/// anything is allocated.
+fn check_resolution(width: usize, height: usize) -> Result<()> {
+    if width == 0 || height == 0 || width > 65_536 || height > 65_536 {
+        return Err(Error::invalid(
+            "camera.resolution",
+            "must be between 1 and 65536 px",
+        ));
+    }
+    let per_pixel = IMAGE_BYTES_PER_PIXEL;
+    let bytes = (width * height) as f64 * per_pixel;
+    if bytes > MAX_IMAGE_BYTES {
+        return Err(Error::invalid(
+            "camera.resolution",
+            format!(
+                "{width} x {height} px implies {:.1} GiB of images ({per_pixel} bytes per pixel), more than the {:.0} GiB limit (at most {:.0} Mpx)",
+                bytes / 1024f64.powi(3),
+                MAX_IMAGE_BYTES / 1024f64.powi(3),
+                MAX_IMAGE_BYTES / per_pixel / 1e6
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// A camera must see something: ∫ QE T λ/(hc) dλ over the band > 0 (a QE
+/// or transmission of 0 would make every camera-weighted figure 0/0).
+fn check_band_response(qe: &Response, transmission: &Response, band: [f64; 2]) -> Result<()> {
+    let integral = crate::radiometry::spectrum::response_integral(qe, transmission, band);
+    if integral.is_finite() && integral > 0.0 {
+        return Ok(());
+    }
+    let qe_alone =
+        crate::radiometry::spectrum::response_integral(qe, &Response::Constant(1.0), band);
+    let key = if qe_alone > 0.0 {
+        "camera.transmission"
+    } else {
+        "camera.quantum_efficiency"
+    };
+    Err(Error::invalid(
+        key,
+        format!(
+            "the camera's band response (QE x transmission) integrates to {integral:e} over camera.band [{:e}, {:e}] m: the camera would detect nothing",
+            band[0], band[1]
+        ),
+    ))
 }

@@ -444,6 +444,7 @@ pub fn build_scene(
         band: BAND_M,
         quantum_efficiency: Response::Table(response),
         transmission: Response::Constant(1.0),
+        sensor: None,
     };
     let sun = SolarSpectrum::from_csv(&options.solar_spectrum, Some(1361.0))?;
     let body = if choice.name == "moon" {

@@ -1,0 +1,400 @@
+//! The EMVA 1288 sensor chain: mean electrons per pixel in, a noisy
+//! quantised DN frame out. Owns the `[camera.sensor]` parameters, the
+//! seeded per-pixel PRNU and DSNU maps, and the order the effects apply in
+//! (the EMVA 1288 reference simulator's):
+//!
+//! 1. light mean μ_k = PRNU_k · (rate_k · t + smear_k), smear_k =
+//!    `transfer_time` / height · Σ_column rate (frame transfer: every pixel
+//!    crosses its whole column while the shutter is open);
+//! 2. charge q_k = Poisson(dark_current · t) + Poisson(μ_k) + DSNU_k (one
+//!    Poisson draw of the summed mean: the same distribution);
+//! 3. optional blooming: charge above the full well spills along the
+//!    column, half up and half down, into pixels with room (conserved
+//!    unless the whole column is full);
+//! 4. read noise: q_k + σ_read · N(0, 1);
+//! 5. full-well clip, system gain K [DN/e⁻], offset, rounding and the ADC
+//!    range [0, 2^bits − 1].
+//!
+//! PRNU_k = max(0, 1 + prnu · N(0, 1)) and DSNU_k = dsnu · N(0, 1) are
+//! fixed per pixel by `seed`; the temporal noise of frame f is drawn from
+//! (seed, f, pixel), so a frame is reproducible whatever the thread count.
+
+pub mod rng;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use rng::Rng;
+
+/// Random stream of the PRNU and DSNU maps.
+const MAP_STREAM: u64 = 1;
+/// Random streams of frames start here (+ frame index).
+const FRAME_STREAM: u64 = 1 << 32;
+
+/// `[camera.sensor]` of a scene file (docs/SCENE.md), as written.
+#[derive(Deserialize, Clone, Debug, Default)]
+#[serde(deny_unknown_fields)]
+pub struct SensorFile {
+    #[serde(default)]
+    seed: u64,
+    #[serde(default)]
+    dark_current: f64,
+    #[serde(default)]
+    read_noise: f64,
+    #[serde(default)]
+    prnu: f64,
+    #[serde(default)]
+    dsnu: f64,
+    #[serde(default)]
+    offset: f64,
+    #[serde(default)]
+    transfer_time: f64,
+    #[serde(default)]
+    blooming: bool,
+}
+
+/// Checked sensor parameters (the camera's full well, gain and bits
+/// complete them).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SensorParams {
+    /// Seed of the PRNU/DSNU maps and of every frame's noise.
+    pub seed: u64,
+    /// Dark current [e⁻/s].
+    pub dark_current: f64,
+    /// Read noise [e⁻ rms].
+    pub read_noise: f64,
+    /// PRNU: relative rms of the per-pixel response.
+    pub prnu: f64,
+    /// DSNU: rms of the per-pixel dark offset [e⁻].
+    pub dsnu: f64,
+    /// Offset (bias) [DN].
+    pub offset: f64,
+    /// Frame-transfer time [s] (0: no smear).
+    pub transfer_time: f64,
+    /// Charge above the full well spills along the column.
+    pub blooming: bool,
+}
+
+impl SensorFile {
+    /// Range-checks every key; `max_dn` bounds the offset.
+    pub fn check(&self, max_dn: f64) -> Result<SensorParams> {
+        Ok(SensorParams {
+            seed: self.seed,
+            dark_current: range(self.dark_current, 0.0, 1e9, "dark_current")?,
+            read_noise: range(self.read_noise, 0.0, 1e6, "read_noise")?,
+            prnu: range(self.prnu, 0.0, 1.0, "prnu")?,
+            dsnu: range(self.dsnu, 0.0, 1e6, "dsnu")?,
+            offset: range(self.offset, 0.0, max_dn, "offset")?,
+            transfer_time: range(self.transfer_time, 0.0, 1e3, "transfer_time")?,
+            blooming: self.blooming,
+        })
+    }
+}
+
+fn range(value: f64, lo: f64, hi: f64, key: &str) -> Result<f64> {
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        Ok(value)
+    } else {
+        Err(Error::invalid(
+            format!("camera.sensor.{key}"),
+            format!("must be within [{lo:e}, {hi:e}], got {value:e}"),
+        ))
+    }
+}
+
+/// The camera's ADC side: what turns electrons into DN.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Readout {
+    /// Full-well capacity [e⁻].
+    pub full_well: f64,
+    /// System gain K [DN/e⁻].
+    pub gain: f64,
+    /// ADC bits.
+    pub bits: u32,
+}
+
+impl Readout {
+    /// Largest DN the ADC outputs.
+    pub fn max_dn(&self) -> f64 {
+        (2f64.powi(self.bits as i32) - 1.0).max(1.0)
+    }
+}
+
+/// One sensor: parameters, readout and its fixed-pattern maps.
+#[derive(Clone, Debug)]
+pub struct Sensor {
+    params: SensorParams,
+    readout: Readout,
+    width: usize,
+    height: usize,
+    prnu: Vec<f32>,
+    dsnu: Vec<f32>,
+}
+
+/// One frame read out.
+#[derive(Clone, Debug)]
+pub struct SensorFrame {
+    /// Quantised DN, row-major.
+    pub dn: Vec<u16>,
+    /// Pixels at the full well or the largest DN.
+    pub saturated: u64,
+}
+
+impl Sensor {
+    /// A sensor of `width` × `height` pixels with its seeded maps.
+    pub fn new(params: SensorParams, readout: Readout, width: usize, height: usize) -> Sensor {
+        let n = width * height;
+        let (mut prnu, mut dsnu) = (vec![1.0f32; n], vec![0.0f32; n]);
+        if params.prnu > 0.0 || params.dsnu > 0.0 {
+            prnu.par_iter_mut()
+                .zip(dsnu.par_iter_mut())
+                .enumerate()
+                .for_each(|(k, (g, o))| {
+                    let mut rng = Rng::new(params.seed, MAP_STREAM, k as u64);
+                    *g = (1.0 + params.prnu * rng.normal_fast()).max(0.0) as f32;
+                    *o = (params.dsnu * rng.normal_fast()) as f32;
+                });
+        }
+        Sensor {
+            params,
+            readout,
+            width,
+            height,
+            prnu,
+            dsnu,
+        }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &SensorParams {
+        &self.params
+    }
+
+    /// The PRNU map (relative response per pixel).
+    pub fn prnu_map(&self) -> &[f32] {
+        &self.prnu
+    }
+
+    /// The DSNU map [e⁻].
+    pub fn dsnu_map(&self) -> &[f32] {
+        &self.dsnu
+    }
+
+    /// Frame `frame` of an exposure `exposure` [s] of a scene giving
+    /// `rate` [e⁻/s] per pixel (row-major, before PRNU).
+    pub fn expose(&self, rate: &[f32], exposure: f64, frame: u64) -> SensorFrame {
+        assert_eq!(rate.len(), self.width * self.height, "rate image size");
+        let smear = self.smear(rate);
+        let w = self.width;
+        let dark = DarkDraw::new(self.params.dark_current * exposure);
+        let pixel = |k: usize| self.collect(rate[k], smear[k % w], &dark, exposure, frame, k);
+        let dn: Vec<u16> = if self.params.blooming {
+            let (mut charge, read): (Vec<f64>, Vec<f32>) =
+                (0..rate.len()).into_par_iter().map(pixel).unzip();
+            bloom(&mut charge, w, self.readout.full_well);
+            charge
+                .par_iter()
+                .zip(&read)
+                .map(|(&q, &r)| self.digitise(q + r as f64))
+                .collect()
+        } else {
+            (0..rate.len())
+                .into_par_iter()
+                .map(|k| {
+                    let (q, r) = pixel(k);
+                    self.digitise(q + r as f64)
+                })
+                .collect()
+        };
+        let r = &self.readout;
+        let sat_dn = (self.params.offset + r.gain * r.full_well)
+            .round()
+            .min(r.max_dn());
+        let saturated = dn.par_iter().filter(|&&v| v as f64 >= sat_dn).count() as u64;
+        SensorFrame { dn, saturated }
+    }
+
+    /// Steps 1, 2 and the draw of 4 for pixel `k`: its charge (light and
+    /// dark electrons, one Poisson draw of their summed mean, plus DSNU)
+    /// and its read noise [e⁻].
+    #[inline]
+    fn collect(
+        &self,
+        rate: f32,
+        smear: f64,
+        dark: &DarkDraw,
+        exposure: f64,
+        frame: u64,
+        k: usize,
+    ) -> (f64, f32) {
+        let p = &self.params;
+        let mut rng = Rng::new(p.seed, FRAME_STREAM + frame, k as u64);
+        let light = self.prnu[k] as f64 * (rate as f64 * exposure + smear);
+        let electrons = match dark.limit {
+            // A dark pixel (most of a sky frame): e^(−mean) once per frame.
+            Some(limit) if light == 0.0 => rng.poisson_small(limit),
+            _ => rng.poisson_fast(dark.mean + light),
+        };
+        let charge = electrons + self.dsnu[k] as f64;
+        let read = if p.read_noise > 0.0 {
+            p.read_noise * rng.normal_fast()
+        } else {
+            0.0
+        };
+        (charge, read as f32)
+    }
+
+    /// Step 5: full well, gain, offset, rounding and the ADC range.
+    #[inline]
+    fn digitise(&self, electrons: f64) -> u16 {
+        let r = &self.readout;
+        (self.params.offset + r.gain * electrons.min(r.full_well))
+            .round()
+            .clamp(0.0, r.max_dn())
+            .min(u16::MAX as f64) as u16
+    }
+
+    /// Smear electrons per column: transfer_time / height · Σ_column rate.
+    fn smear(&self, rate: &[f32]) -> Vec<f64> {
+        let (w, h) = (self.width, self.height);
+        if self.params.transfer_time <= 0.0 {
+            return vec![0.0; w];
+        }
+        let per_row = self.params.transfer_time / h as f64;
+        let mut sums = vec![0.0f64; w];
+        for row in rate.chunks(w) {
+            for (s, &r) in sums.iter_mut().zip(row) {
+                *s += r as f64;
+            }
+        }
+        sums.iter().map(|s| s * per_row).collect()
+    }
+}
+
+/// The dark charge's mean over one exposure and, below 30 e⁻, its e^(−mean).
+struct DarkDraw {
+    mean: f64,
+    limit: Option<f64>,
+}
+
+impl DarkDraw {
+    fn new(mean: f64) -> DarkDraw {
+        DarkDraw {
+            mean,
+            limit: (mean < 30.0).then(|| (-mean).exp()),
+        }
+    }
+}
+
+/// Charge above `full_well` spills along each column: half of a pixel's
+/// excess runs down and half up, each passing full pixels until one has
+/// room; what reaches an end of the column turns back. Charge is
+/// conserved unless the whole column fills (the rest is drained).
+pub fn bloom(charge: &mut [f64], width: usize, full_well: f64) {
+    let height = charge.len() / width;
+    // Only columns holding a pixel over the full well change.
+    let mut over = vec![false; width];
+    for row in charge.chunks(width) {
+        for (o, &q) in over.iter_mut().zip(row) {
+            *o |= q > full_well;
+        }
+    }
+    let mut columns: Vec<(usize, Vec<f64>)> = (0..width)
+        .filter(|&i| over[i])
+        .map(|i| (i, (0..height).map(|j| charge[j * width + i]).collect()))
+        .collect();
+    columns
+        .par_iter_mut()
+        .for_each(|(_, c)| bloom_column(c, full_well));
+    for (i, c) in &columns {
+        for (j, &q) in c.iter().enumerate() {
+            charge[j * width + i] = q;
+        }
+    }
+}
+
+/// One column of [`bloom`].
+fn bloom_column(c: &mut [f64], full_well: f64) {
+    let n = c.len();
+    let mut up = vec![0.0; n];
+    let mut down = 0.0;
+    // Split each excess; sweep the downward halves to the bottom.
+    for j in 0..n {
+        let excess = (c[j] - full_well).max(0.0);
+        c[j] -= excess;
+        up[j] = excess / 2.0;
+        let room = full_well - c[j];
+        let carried = down + excess / 2.0;
+        let taken = carried.min(room).max(0.0);
+        c[j] += taken;
+        down = carried - taken;
+    }
+    // The upward halves (and what reached the bottom) sweep to the top.
+    let mut carried = down;
+    for j in (0..n).rev() {
+        carried += up[j];
+        let taken = carried.min(full_well - c[j]).max(0.0);
+        c[j] += taken;
+        carried -= taken;
+    }
+    // What reached the top turns back down into any room left.
+    for q in c.iter_mut() {
+        let taken = carried.min(full_well - *q).max(0.0);
+        *q += taken;
+        carried -= taken;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blooming_conserves_charge_and_fills_neighbours() {
+        let fw = 100.0;
+        let mut c = vec![10.0, 20.0, 450.0, 30.0, 0.0, 5.0];
+        let before: f64 = c.iter().sum();
+        bloom_column(&mut c, fw);
+        let after: f64 = c.iter().sum();
+        assert!((before - after).abs() < 1e-9, "{before} {after}");
+        assert!(c.iter().all(|&q| q <= fw + 1e-12), "{c:?}");
+        // 350 e⁻ excess: 175 down fills pixel 3 (70) then 4 (100), 5 gets 5;
+        // 175 up fills pixel 1 (80) and 0 (90), 5 left turn back down.
+        assert_eq!(c[2], fw);
+        assert_eq!(c[3], fw);
+        assert_eq!(c[1], fw);
+        assert_eq!(c[0], fw);
+    }
+
+    #[test]
+    fn a_full_column_drains_the_rest() {
+        let mut c = vec![300.0, 300.0];
+        bloom_column(&mut c, 100.0);
+        assert_eq!(c, vec![100.0, 100.0]);
+    }
+
+    #[test]
+    fn smear_adds_the_column_mean_over_the_transfer() {
+        let params = SensorParams {
+            seed: 1,
+            dark_current: 0.0,
+            read_noise: 0.0,
+            prnu: 0.0,
+            dsnu: 0.0,
+            offset: 0.0,
+            transfer_time: 0.01,
+            blooming: false,
+        };
+        let readout = Readout {
+            full_well: 1e9,
+            gain: 1.0,
+            bits: 16,
+        };
+        let s = Sensor::new(params, readout, 2, 4);
+        let rate = [0.0, 0.0, 4000.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        // Column 0 holds 4000 e⁻/s: each of its pixels gets 0.01/4 × 4000 =
+        // 10 e⁻ of smear; column 1 none.
+        assert_eq!(s.smear(&rate), vec![10.0, 0.0]);
+    }
+}

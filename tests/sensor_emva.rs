@@ -1,0 +1,291 @@
+//! The EMVA 1288 sensor chain (`src/sensor`): a photon-transfer analysis
+//! written here (EMVA 1288 §6: temporal variance from the difference of two
+//! frames, gain from the mean–variance slope, dark current from the dark
+//! signal's growth with exposure, read noise from the dark variance less
+//! the quantisation noise 1/12 DN²) over flat fields rendered by the
+//! renderer recovers the configured gain, read noise and dark current; the
+//! full well and the ADC's bit depth cap the DN where they should; the
+//! seed fixes the frame.
+
+mod common;
+
+use std::path::Path;
+
+use optistim::scene::Scene;
+use optistim::sensor::Sensor;
+
+/// Configured truth.
+const GAIN: f64 = 0.25;
+const READ_NOISE: f64 = 8.0;
+const DARK_CURRENT: f64 = 200.0;
+const FULL_WELL: f64 = 20_000.0;
+const OFFSET: f64 = 100.0;
+
+/// A 128 × 128 camera 1000 m above a Lambert sphere of radius 1000 m,
+/// looking at the sub-solar point with a 2° field: a flat field (the
+/// radiance varies by < 0.1 % across it).
+fn flat_scene(bits: u32, seed: u64, extra: &str) -> Scene {
+    Scene::from_toml(&flat_text(bits, seed, extra), Path::new("flat.toml")).expect("flat scene")
+}
+
+fn flat_text(bits: u32, seed: u64, extra: &str) -> String {
+    format!(
+        r#"
+[camera]
+resolution = [128, 128]
+pixel_pitch = 10e-6
+fov_deg = 2.0
+f_number = 8.0
+exposure = 1e-3
+full_well = {FULL_WELL:e}
+bits = {bits}
+gain = {GAIN}
+band = [450e-9, 820e-9]
+
+[camera.sensor]
+seed = {seed}
+dark_current = {DARK_CURRENT}
+read_noise = {READ_NOISE}
+prnu = 0.01
+dsnu = 3.0
+offset = {OFFSET}
+{extra}
+
+[sun]
+spectrum = "blackbody"
+temperature = 5772.0
+irradiance_1au = 1361.0
+
+[body]
+radius = 1000.0
+reflectance = {{ model = "lambert", albedo = 0.3 }}
+
+[state]
+camera_position = [2000.0, 0.0, 0.0]
+camera_attitude = {q:?}
+sun_position = [1.496e11, 0.0, 0.0]
+"#,
+        q = common::look_at(glam::DVec3::new(2000.0, 0.0, 0.0), glam::DVec3::ZERO)
+    )
+}
+
+fn sensor_of(scene: &Scene) -> Sensor {
+    let pin = &scene.camera.pinhole;
+    Sensor::new(
+        scene.camera.sensor.expect("sensor configured"),
+        scene.camera.readout(),
+        pin.width,
+        pin.height,
+    )
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+fn as_f64(dn: &[u16]) -> Vec<f64> {
+    dn.iter().map(|&v| v as f64).collect()
+}
+
+/// EMVA 1288: mean of two frames and the temporal variance
+/// var(A − B) / 2 (the fixed pattern cancels in the difference).
+fn pair_stats(sensor: &Sensor, rate: &[f32], t: f64, frame: u64) -> (f64, f64) {
+    let a = as_f64(&sensor.expose(rate, t, frame).dn);
+    let b = as_f64(&sensor.expose(rate, t, frame + 1).dn);
+    let diff: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
+    let m = mean(&diff);
+    let var = diff.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (diff.len() - 1) as f64 / 2.0;
+    ((mean(&a) + mean(&b)) / 2.0, var)
+}
+
+/// Least-squares line y = a + b x.
+fn fit_line(x: &[f64], y: &[f64]) -> (f64, f64) {
+    let (mx, my) = (mean(x), mean(y));
+    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+    let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
+    let slope = sxy / sxx;
+    (my - slope * mx, slope)
+}
+
+#[test]
+fn photon_transfer_recovers_gain_read_noise_and_dark_current() {
+    let scene = flat_scene(16, 7, "");
+    let images = common::render(&scene);
+    let rate = &images.electron_rate;
+    let max_rate = rate.iter().copied().fold(0.0f32, f32::max) as f64;
+    let min_rate = rate.iter().copied().fold(f32::INFINITY, f32::min) as f64;
+    assert!(
+        min_rate > 0.995 * max_rate,
+        "not flat: {min_rate} .. {max_rate}"
+    );
+    let sensor = sensor_of(&scene);
+    let dark = vec![0.0f32; rate.len()];
+
+    // Dark signal against exposure: slope K · dark current.
+    let dark_times = [0.5, 1.0, 2.0, 4.0];
+    let dark_means: Vec<f64> = dark_times
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| pair_stats(&sensor, &dark, t, 100 + 2 * i as u64).0)
+        .collect();
+    let (_, dark_slope) = fit_line(&dark_times, &dark_means);
+
+    // Photon transfer: light levels from 2 % to 80 % of the full well.
+    let mut signal = Vec::new();
+    let mut variance = Vec::new();
+    for (i, fill) in [0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.65, 0.8]
+        .iter()
+        .enumerate()
+    {
+        let t = fill * FULL_WELL / max_rate;
+        let (mu, var) = pair_stats(&sensor, rate, t, 2 * i as u64);
+        let (mu_dark, var_dark) = pair_stats(&sensor, &dark, t, 50 + 2 * i as u64);
+        signal.push(mu - mu_dark);
+        variance.push(var - var_dark);
+    }
+    let (_, gain) = fit_line(&signal, &variance);
+    let dark_current = dark_slope / gain;
+
+    // Read noise: σ²_dark = K² (σ_r² + D t) + 1/12 at a short exposure.
+    let t0 = 1e-6;
+    let (_, var0) = pair_stats(&sensor, &dark, t0, 200);
+    let read_noise = ((var0 - 1.0 / 12.0) / (gain * gain) - dark_current * t0).sqrt();
+
+    for (name, got, truth) in [
+        ("gain", gain, GAIN),
+        ("read noise", read_noise, READ_NOISE),
+        ("dark current", dark_current, DARK_CURRENT),
+    ] {
+        eprintln!("{name}: recovered {got:.5}, configured {truth}");
+        assert!(
+            (got / truth - 1.0).abs() < 0.02,
+            "{name}: recovered {got}, configured {truth}"
+        );
+    }
+}
+
+#[test]
+fn render_writes_frame_zero_of_the_sensor() {
+    let scene = flat_scene(16, 3, "");
+    let images = common::render(&scene);
+    let frame = sensor_of(&scene).expose(&images.electron_rate, scene.camera.exposure, 0);
+    assert_eq!(images.dn, frame.dn);
+    assert!(images.summary.sensor.is_some());
+}
+
+#[test]
+fn saturation_sits_at_the_full_well_and_the_bit_depth() {
+    // 16 bits: the full well saturates first, at round(offset + K · FW).
+    let scene = flat_scene(16, 5, "");
+    let images = common::render(&scene);
+    let max_rate = images.electron_rate.iter().copied().fold(0.0f32, f32::max) as f64;
+    let sensor = sensor_of(&scene);
+    let t_over = 3.0 * FULL_WELL / max_rate;
+    let frame = sensor.expose(&images.electron_rate, t_over, 0);
+    let level = (OFFSET + GAIN * FULL_WELL).round() as u16;
+    assert!(frame.dn.iter().all(|&v| v == level), "full well at {level}");
+    assert_eq!(frame.saturated as usize, frame.dn.len());
+    // Just below the full well, nothing saturates.
+    let below = sensor.expose(&images.electron_rate, 0.8 * FULL_WELL / max_rate, 0);
+    assert_eq!(below.saturated, 0);
+    assert!(below.dn.iter().all(|&v| v < level));
+
+    // 12 bits: K · FW + offset = 5100 DN exceeds 4095, so the ADC limits.
+    let scene = flat_scene(12, 5, "");
+    let sensor = sensor_of(&scene);
+    let max_dn = (1u16 << 12) - 1;
+    let frame = sensor.expose(&images.electron_rate, t_over, 0);
+    assert!(frame.dn.iter().all(|&v| v == max_dn));
+    // At 90 % of the full well (4600 DN expected) some pixels clip at
+    // 4095 and none exceed it.
+    let frame = sensor.expose(&images.electron_rate, 0.9 * FULL_WELL / max_rate, 0);
+    assert!(frame.dn.iter().all(|&v| v <= max_dn));
+    assert!(frame.dn.contains(&max_dn));
+    assert_eq!(
+        frame.saturated as usize,
+        frame.dn.iter().filter(|&&v| v == max_dn).count()
+    );
+}
+
+#[test]
+fn the_seed_fixes_the_noise() {
+    let scene = flat_scene(16, 11, "");
+    let images = common::render(&scene);
+    let rate = &images.electron_rate;
+    let t = 0.3 * FULL_WELL / rate[0] as f64;
+    let a = sensor_of(&scene).expose(rate, t, 0).dn;
+    let b = sensor_of(&flat_scene(16, 11, "")).expose(rate, t, 0).dn;
+    assert_eq!(a, b, "same seed, same frame");
+    let other = sensor_of(&flat_scene(16, 12, "")).expose(rate, t, 0).dn;
+    let differing = a.iter().zip(&other).filter(|(x, y)| x != y).count();
+    // Shot noise alone is ~ 1.2 DN rms here: nearly every pixel differs.
+    assert!(differing > a.len() * 9 / 10, "{differing} of {}", a.len());
+    let next = sensor_of(&scene).expose(rate, t, 1).dn;
+    assert_ne!(a, next, "another frame, other noise");
+}
+
+#[test]
+fn blooming_conserves_charge_in_a_render() {
+    // A spot over the full well in one column: with blooming the column's
+    // mean DN (offset removed) equals the unclipped charge while the
+    // column has room; without, it is clipped.
+    let scene = flat_scene(16, 2, "blooming = true");
+    let sensor = sensor_of(&scene);
+    let (w, h) = (128, 128);
+    let mut rate = vec![0.0f32; w * h];
+    rate[64 * w + 10] = 5.0 * FULL_WELL as f32; // 5 full wells in 1 s
+    let t = 1.0;
+    let frame = sensor.expose(&rate, t, 0);
+    let column: f64 = (0..h)
+        .map(|j| frame.dn[j * w + 10] as f64 - OFFSET)
+        .sum::<f64>();
+    let dark_column: f64 = (0..h)
+        .map(|j| frame.dn[j * w + 11] as f64 - OFFSET)
+        .sum::<f64>();
+    let spot = 5.0 * FULL_WELL * sensor.prnu_map()[64 * w + 10] as f64;
+    let got = (column - dark_column) / GAIN;
+    assert!((got / spot - 1.0).abs() < 0.01, "{got} e- for {spot}");
+    // The spill is symmetric about the spot: 5 full pixels in a row
+    // (full: within 4 read-noise σ of the full well), rows 62 to 66.
+    let near_full = OFFSET + GAIN * (FULL_WELL - 4.0 * READ_NOISE);
+    let full: Vec<usize> = (0..h)
+        .filter(|&j| frame.dn[j * w + 10] as f64 >= near_full)
+        .collect();
+    assert_eq!(full, vec![62, 63, 64, 65, 66]);
+}
+
+#[test]
+fn bad_sensor_keys_are_one_line_errors_naming_the_key() {
+    let good = flat_text(16, 1, "");
+    for (from, to, key) in [
+        (
+            "read_noise = 8",
+            "read_noise = -1",
+            "camera.sensor.read_noise",
+        ),
+        ("prnu = 0.01", "prnu = 1.5", "camera.sensor.prnu"),
+        ("offset = 100", "offset = 70000", "camera.sensor.offset"),
+        (
+            "dark_current = 200",
+            "dark_current = nan",
+            "camera.sensor.dark_current",
+        ),
+        (
+            "dsnu = 3.0",
+            "dsnu = 3.0\ntransfer_time = inf",
+            "camera.sensor.transfer_time",
+        ),
+        ("dsnu = 3.0", "dsnu = 3.0\nsmear = 1", "smear"),
+    ] {
+        assert!(good.contains(from), "{from}");
+        let text = good.replace(from, to);
+        let err = Scene::from_toml(&text, Path::new("flat.toml"))
+            .expect_err(to)
+            .to_string();
+        assert!(
+            err.contains(key) && err.contains("flat.toml"),
+            "{to}: {err}"
+        );
+        assert!(!err.contains('\n'), "{err}");
+    }
+}
