@@ -12,25 +12,12 @@ use rayon::prelude::*;
 use rustfft::{num_complex::Complex, FftPlanner};
 
 use crate::error::{Error, Result};
+pub use crate::scene::camera::Psf;
 
 /// Energy a kernel encloses before it is cut and renormalised.
 pub const ENCLOSED: f64 = 0.995;
 /// Largest kernel half-width, px (a 257 × 257 kernel).
 pub const MAX_HALF_WIDTH: usize = 128;
-
-/// A point spread function.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Psf {
-    /// Circular Gaussian of standard deviation `sigma_px` pixels.
-    Gaussian { sigma_px: f64 },
-    /// Diffraction of a circular aperture of f-number `f_number` at
-    /// wavelength `wavelength_m`, on pixels of pitch `pitch_m`.
-    Airy {
-        f_number: f64,
-        wavelength_m: f64,
-        pitch_m: f64,
-    },
-}
 
 /// A normalised, pixel-integrated kernel of odd side `2 half + 1`.
 #[derive(Debug, Clone, PartialEq)]
@@ -40,122 +27,66 @@ pub struct Kernel {
     pub weights: Vec<f64>,
 }
 
-impl Psf {
-    /// Range-checks the parameters (`key` names them in errors).
-    pub fn validate(&self, key: &str) -> Result<()> {
-        let ok = |v: f64, lo: f64, hi: f64| v.is_finite() && v > lo && v <= hi;
-        match *self {
-            Psf::Gaussian { sigma_px } if !ok(sigma_px, 0.0, 32.0) => Err(Error::invalid(
-                key,
-                format!("sigma_px {sigma_px} is not in (0, 32] px"),
-            )),
-            Psf::Airy {
-                f_number,
-                wavelength_m,
-                pitch_m,
-            } if !(ok(f_number, 0.0, 1e3)
-                && ok(wavelength_m, 1e-8, 1e-4)
-                && ok(pitch_m, 1e-7, 1e-3)) =>
-            {
-                Err(Error::invalid(
-                    key,
-                    format!(
-                        "f_number {f_number}, wavelength {wavelength_m} m, pitch {pitch_m} m: \
-                         need f-number in (0, 1000], wavelength in (10 nm, 100 µm], pitch in (0.1 µm, 1 mm]"
-                    ),
-                ))
-            }
-            _ => Ok(()),
+/// Half-width (px) of the kernel: the radius enclosing [`ENCLOSED`],
+/// plus one pixel for the pixel's own extent.
+fn half_width(psf: &Psf) -> Result<usize> {
+    let (mut lo, mut hi) = (0.0, 1.0);
+    while psf.encircled_energy(hi) < ENCLOSED {
+        hi *= 2.0;
+        if hi > MAX_HALF_WIDTH as f64 {
+            return Err(Error::invalid(
+                "camera.psf",
+                format!("the PSF is wider than {MAX_HALF_WIDTH} px at {ENCLOSED} of its energy"),
+            ));
         }
     }
-
-    /// The fraction of a point source's power within radius `r_px` of its
-    /// centre (the continuous PSF, closed form).
-    pub fn encircled_energy(&self, r_px: f64) -> f64 {
-        match *self {
-            Psf::Gaussian { sigma_px } => 1.0 - (-0.5 * (r_px / sigma_px).powi(2)).exp(),
-            Psf::Airy { .. } => {
-                let x = std::f64::consts::PI * r_px / self.airy_scale_px();
-                1.0 - libm::j0(x).powi(2) - libm::j1(x).powi(2)
-            }
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if psf.encircled_energy(mid) < ENCLOSED {
+            lo = mid;
+        } else {
+            hi = mid;
         }
     }
+    Ok(hi.ceil() as usize + 1)
+}
 
-    /// λN in pixels: the Airy pattern's radial unit.
-    fn airy_scale_px(&self) -> f64 {
-        match *self {
-            Psf::Airy {
-                f_number,
-                wavelength_m,
-                pitch_m,
-            } => wavelength_m * f_number / pitch_m,
-            Psf::Gaussian { .. } => f64::NAN,
+/// The pixel-integrated kernel of `psf`.
+pub fn kernel(psf: &Psf) -> Result<Kernel> {
+    psf.validate("camera.psf")?;
+    let half = half_width(psf)?;
+    let n = 2 * half + 1;
+    let mut weights: Vec<f64> = (0..n * n)
+        .into_par_iter()
+        .map(|k| {
+            let (i, j) = ((k % n) as f64 - half as f64, (k / n) as f64 - half as f64);
+            pixel_integral(psf, i, j)
+        })
+        .collect();
+    let sum: f64 = weights.iter().sum();
+    weights.iter_mut().for_each(|w| *w /= sum);
+    Ok(Kernel { half, weights })
+}
+
+/// The PSF integrated over the pixel square centred at offset (i, j).
+fn pixel_integral(psf: &Psf, i: f64, j: f64) -> f64 {
+    match *psf {
+        Psf::Gaussian { sigma_px } => {
+            let cdf = |x: f64| 0.5 * libm::erfc(-x / (sigma_px * std::f64::consts::SQRT_2));
+            let span = |c: f64| cdf(c + 0.5) - cdf(c - 0.5);
+            span(i) * span(j)
         }
-    }
-
-    /// Half-width (px) of the kernel: the radius enclosing [`ENCLOSED`],
-    /// plus one pixel for the pixel's own extent.
-    fn half_width(&self) -> Result<usize> {
-        let (mut lo, mut hi) = (0.0, 1.0);
-        while self.encircled_energy(hi) < ENCLOSED {
-            hi *= 2.0;
-            if hi > MAX_HALF_WIDTH as f64 {
-                return Err(Error::invalid(
-                    "camera.psf",
-                    format!(
-                        "the PSF is wider than {MAX_HALF_WIDTH} px at {ENCLOSED} of its energy"
-                    ),
-                ));
-            }
-        }
-        for _ in 0..60 {
-            let mid = 0.5 * (lo + hi);
-            if self.encircled_energy(mid) < ENCLOSED {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        Ok(hi.ceil() as usize + 1)
-    }
-
-    /// The pixel-integrated kernel.
-    pub fn kernel(&self) -> Result<Kernel> {
-        self.validate("camera.psf")?;
-        let half = self.half_width()?;
-        let n = 2 * half + 1;
-        let mut weights: Vec<f64> = (0..n * n)
-            .into_par_iter()
-            .map(|k| {
-                let (i, j) = ((k % n) as f64 - half as f64, (k / n) as f64 - half as f64);
-                self.pixel_integral(i, j)
-            })
-            .collect();
-        let sum: f64 = weights.iter().sum();
-        weights.iter_mut().for_each(|w| *w /= sum);
-        Ok(Kernel { half, weights })
-    }
-
-    /// The PSF integrated over the pixel square centred at offset (i, j).
-    fn pixel_integral(&self, i: f64, j: f64) -> f64 {
-        match *self {
-            Psf::Gaussian { sigma_px } => {
-                let cdf = |x: f64| 0.5 * libm::erfc(-x / (sigma_px * std::f64::consts::SQRT_2));
-                let span = |c: f64| cdf(c + 0.5) - cdf(c - 0.5);
-                span(i) * span(j)
-            }
-            Psf::Airy { .. } => {
-                let scale = self.airy_scale_px();
-                // Intensity normalised so that it integrates to 1 over the
-                // plane: I(r) = π/(4 s²) · [2 J1(x)/x]², x = π r / s.
-                let norm = std::f64::consts::PI / (4.0 * scale * scale);
-                let intensity = |x: f64, y: f64| {
-                    let q = std::f64::consts::PI * (x * x + y * y).sqrt() / scale;
-                    let a = if q < 1e-8 { 1.0 } else { 2.0 * libm::j1(q) / q };
-                    norm * a * a
-                };
-                gauss_legendre_square(i, j, &intensity)
-            }
+        Psf::Airy { .. } => {
+            let scale = psf.airy_scale_px();
+            // Intensity normalised so that it integrates to 1 over the
+            // plane: I(r) = π/(4 s²) · [2 J1(x)/x]², x = π r / s.
+            let norm = std::f64::consts::PI / (4.0 * scale * scale);
+            let intensity = |x: f64, y: f64| {
+                let q = std::f64::consts::PI * (x * x + y * y).sqrt() / scale;
+                let a = if q < 1e-8 { 1.0 } else { 2.0 * libm::j1(q) / q };
+                norm * a * a
+            };
+            gauss_legendre_square(i, j, &intensity)
         }
     }
 }
@@ -325,7 +256,7 @@ mod tests {
                 pitch_m: 5.5e-6,
             },
         ] {
-            let k = psf.kernel().unwrap();
+            let k = kernel(&psf).unwrap();
             let n = 2 * k.half + 1;
             assert!((k.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);
             for y in 0..n {
@@ -341,7 +272,7 @@ mod tests {
     /// made wide enough for the FFT path).
     #[test]
     fn fft_and_direct_convolution_agree() {
-        let k = Psf::Gaussian { sigma_px: 3.0 }.kernel().unwrap();
+        let k = kernel(&Psf::Gaussian { sigma_px: 3.0 }).unwrap();
         assert!(2 * k.half + 1 > DIRECT_MAX_SIDE);
         let (w, h) = (37, 23);
         let img: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 101) as f32).collect();
@@ -353,14 +284,14 @@ mod tests {
 
     #[test]
     fn bad_parameters_are_refused() {
-        assert!(Psf::Gaussian { sigma_px: f64::NAN }.kernel().is_err());
-        assert!(Psf::Gaussian { sigma_px: 0.0 }.kernel().is_err());
+        assert!(kernel(&Psf::Gaussian { sigma_px: f64::NAN }).is_err());
+        assert!(kernel(&Psf::Gaussian { sigma_px: 0.0 }).is_err());
         let wide = Psf::Airy {
             f_number: 500.0,
             wavelength_m: 1e-5,
             pitch_m: 1e-6,
         };
-        let e = wide.kernel().unwrap_err().to_string();
+        let e = kernel(&wide).unwrap_err().to_string();
         assert!(e.contains("camera.psf"), "{e}");
     }
 }

@@ -174,8 +174,11 @@ pub fn render_scene(
         ));
     }
     let bands = plan_bands(scene);
-    let spectral = render_bands(scene, renderer, pixels, &bands);
+    let mut spectral = render_bands(scene, renderer, pixels, &bands);
     let render_ms = start.elapsed().as_secs_f64() * 1e3;
+    if let Some(psf) = &cam.psf {
+        spectral.blur(&crate::optics::psf::kernel(psf)?, pin.width, pin.height);
+    }
     let band_irradiance: f64 = bands.iter().map(|b| b.irradiance_1au).sum();
     let band_electrons: f64 = bands.iter().map(|b| b.electron_rate_1au).sum();
     // L_eff = (∫ L R dλ) ∫E☉ / ∫E☉R; ∫ L R dλ = electron rate / Ω.
@@ -238,6 +241,17 @@ struct Spectral {
     all_caps_electrons: f64,
     /// The last sub-band's statistics (phase, caps).
     stats: RenderStats,
+}
+
+impl Spectral {
+    /// The optics' PSF: the pinhole image's radiance and electron rate
+    /// spread over the pixels (the light that leaves the frame is lost).
+    /// The pixels' solid angles and cos⁴ change little over a kernel, so
+    /// blurring before the detector equals blurring its electrons.
+    fn blur(&mut self, kernel: &crate::optics::psf::Kernel, width: usize, height: usize) {
+        self.radiance = kernel.convolve(&self.radiance, width, height);
+        self.electron_rate = kernel.convolve(&self.electron_rate, width, height);
+    }
 }
 
 /// Renders each sub-band at its own model and sums radiance and electron

@@ -7,6 +7,8 @@
 
 use glam::DVec3;
 
+use crate::error::{Error, Result};
+
 /// Pinhole projection with square or rectangular pixels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Pinhole {
@@ -79,6 +81,74 @@ impl Pinhole {
 pub fn rectangle_solid_angle(x0: f64, x1: f64, y0: f64, y1: f64) -> f64 {
     let f = |x: f64, y: f64| (x * y / (1.0 + x * x + y * y).sqrt()).atan();
     f(x1, y1) - f(x0, y1) - f(x1, y0) + f(x0, y0)
+}
+
+/// A point spread function.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Psf {
+    /// Circular Gaussian of standard deviation `sigma_px` pixels.
+    Gaussian { sigma_px: f64 },
+    /// Diffraction of a circular aperture of f-number `f_number` at
+    /// wavelength `wavelength_m`, on pixels of pitch `pitch_m`.
+    Airy {
+        f_number: f64,
+        wavelength_m: f64,
+        pitch_m: f64,
+    },
+}
+
+impl Psf {
+    /// Range-checks the parameters (`key` names them in errors).
+    pub fn validate(&self, key: &str) -> Result<()> {
+        let ok = |v: f64, lo: f64, hi: f64| v.is_finite() && v > lo && v <= hi;
+        match *self {
+            Psf::Gaussian { sigma_px } if !ok(sigma_px, 0.0, 32.0) => Err(Error::invalid(
+                key,
+                format!("sigma_px {sigma_px} is not in (0, 32] px"),
+            )),
+            Psf::Airy {
+                f_number,
+                wavelength_m,
+                pitch_m,
+            } if !(ok(f_number, 0.0, 1e3)
+                && ok(wavelength_m, 1e-8, 1e-4)
+                && ok(pitch_m, 1e-7, 1e-3)) =>
+            {
+                Err(Error::invalid(
+                    key,
+                    format!(
+                        "f_number {f_number}, wavelength {wavelength_m} m, pitch {pitch_m} m: \
+                         need f-number in (0, 1000], wavelength in (10 nm, 100 µm], pitch in (0.1 µm, 1 mm]"
+                    ),
+                ))
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The fraction of a point source's power within radius `r_px` of its
+    /// centre (the continuous PSF, closed form).
+    pub fn encircled_energy(&self, r_px: f64) -> f64 {
+        match *self {
+            Psf::Gaussian { sigma_px } => 1.0 - (-0.5 * (r_px / sigma_px).powi(2)).exp(),
+            Psf::Airy { .. } => {
+                let x = std::f64::consts::PI * r_px / self.airy_scale_px();
+                1.0 - libm::j0(x).powi(2) - libm::j1(x).powi(2)
+            }
+        }
+    }
+
+    /// λN in pixels: the Airy pattern's radial unit.
+    pub fn airy_scale_px(&self) -> f64 {
+        match *self {
+            Psf::Airy {
+                f_number,
+                wavelength_m,
+                pitch_m,
+            } => wavelength_m * f_number / pitch_m,
+            Psf::Gaussian { .. } => f64::NAN,
+        }
+    }
 }
 
 #[cfg(test)]

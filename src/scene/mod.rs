@@ -20,6 +20,7 @@ use crate::radiometry::spectrum::{Response, SolarSpectrum, Table};
 use crate::render_settings::RenderSettings;
 use crate::sensor::{Readout, SensorFile, SensorParams};
 pub use camera::Pinhole;
+use camera::Psf;
 pub use maps::{EquirectMap, NormalMap};
 
 /// Camera: pinhole geometry plus the detector chain of the paper's Eq. 2.
@@ -50,6 +51,9 @@ pub struct Camera {
     /// The EMVA 1288 sensor chain (`[camera.sensor]`); None: the ideal
     /// detector of Eq. 2.
     pub sensor: Option<SensorParams>,
+    /// The optics' point spread function (`camera.psf`), integrated over
+    /// each pixel; None: the pinhole's ideal image.
+    pub psf: Option<Psf>,
 }
 
 impl Camera {
@@ -277,6 +281,18 @@ pub struct CameraFile {
     #[serde(default = "unit_response")]
     transmission: ResponseFile,
     sensor: Option<SensorFile>,
+    psf: Option<PsfFile>,
+}
+
+/// `camera.psf`: the optics' point spread function.
+#[derive(Deserialize, Clone, Debug)]
+#[serde(tag = "model", rename_all = "snake_case", deny_unknown_fields)]
+enum PsfFile {
+    /// `{ model = "gaussian", sigma_px = 0.8 }`.
+    Gaussian { sigma_px: f64 },
+    /// `{ model = "airy", wavelength = 6.5e-7 }`: diffraction at the
+    /// camera's f-number on its pixel pitch.
+    Airy { wavelength: f64 },
 }
 
 #[derive(Deserialize, Clone, Debug)]
@@ -963,6 +979,21 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
     }
     let max_dn = 2f64.powi(c.bits as i32) - 1.0;
     let sensor = c.sensor.as_ref().map(|s| s.check(max_dn)).transpose()?;
+    let psf = c
+        .psf
+        .as_ref()
+        .map(|p| {
+            let psf = match *p {
+                PsfFile::Gaussian { sigma_px } => Psf::Gaussian { sigma_px },
+                PsfFile::Airy { wavelength } => Psf::Airy {
+                    f_number,
+                    wavelength_m: wavelength,
+                    pitch_m: pitch,
+                },
+            };
+            psf.validate("camera.psf").map(|_| psf)
+        })
+        .transpose()?;
     let quantum_efficiency = response(&c.quantum_efficiency, base, "camera.quantum_efficiency")?;
     let transmission = response(&c.transmission, base, "camera.transmission")?;
     check_band_response(&quantum_efficiency, &transmission, band)?;
@@ -991,6 +1022,7 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
         quantum_efficiency,
         transmission,
         sensor,
+        psf,
     })
 }
 

@@ -445,6 +445,7 @@ pub fn build_scene(
         quantum_efficiency: Response::Table(response),
         transmission: Response::Constant(1.0),
         sensor: None,
+        psf: None,
     };
     let sun = SolarSpectrum::from_csv(&options.solar_spectrum, Some(1361.0))?;
     let body = if choice.name == "moon" {
