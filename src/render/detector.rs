@@ -80,6 +80,10 @@ pub struct Summary {
     /// band and the render's over it (`irradiance_all_caps_w_m2`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lime: Option<LimeComparison>,
+    /// For a body with `shadows`: whether the relief's cast shadows were
+    /// applied and why ([`super::relief::decide_for_frame`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub relief_shadows: Option<super::relief::ShadowDecision>,
 }
 
 /// Pixel solid angles and off-axis cosines of one camera, computed once.
@@ -193,6 +197,7 @@ pub fn render_scene(
             apparent_radius_deg: apparent.to_degrees(),
             apparent_radius_px: apparent.tan() * pin.fx,
             lime: lime_comparison(scene, spectral.all_caps, effective_all_caps),
+            relief_shadows: spectral.stats.shadows,
         },
     };
     images.check_finite()?;
