@@ -148,13 +148,13 @@ impl HorizonMap {
     /// the DEM could rise above the best angle found.
     pub fn compute(dem: &EquirectMap, radius: f64, azimuths: usize) -> HorizonMap {
         let (w, h) = (dem.width, dem.height);
-        let (_, h_max) = dem.range();
-        let r_max = radius + h_max as f64;
+        let (h_min, h_max) = dem.range();
         let step = 0.5 * PI / h as f64;
         // The farthest any cell needs to look: from the lowest point to
         // where the highest one sinks below its horizontal plane.
-        let (h_min, _) = dem.range();
-        let reach = ((radius + h_min as f64) / r_max).clamp(-1.0, 1.0).acos();
+        let reach = ((radius + h_min as f64) / (radius + h_max as f64))
+            .clamp(-1.0, 1.0)
+            .acos();
         let steps = (reach / step).ceil() as usize + 1;
         let trig: Vec<(f64, f64)> = (1..=steps)
             .map(|k| {
@@ -166,6 +166,7 @@ impl HorizonMap {
             .map(|k| (TAU * k as f64 / azimuths as f64).sin_cos())
             .map(|(s, c)| (c, s))
             .collect();
+        let tops = LocalTops::new(dem, reach);
         let mut data = vec![0.0f32; w * h * azimuths];
         data.par_chunks_mut(w * azimuths)
             .enumerate()
@@ -174,7 +175,7 @@ impl HorizonMap {
                     let march = March {
                         dem,
                         radius,
-                        r_max,
+                        r_max: radius + tops.at(col, row),
                         trig: &trig,
                     };
                     march.cell(col, row, &directions, cell);
@@ -278,6 +279,72 @@ pub struct HorizonParams {
     pub scale: f64,
     /// Azimuth count.
     pub azimuths: usize,
+}
+
+/// Side [cells] of the tiles of [`LocalTops`].
+const TILE: usize = 8;
+
+/// For each tile of TILE × TILE cells, the highest DEM value within the
+/// march's reach of any of its cells: the bound that ends a march early
+/// (a cell on a plain far from any peak marches not at all).
+struct LocalTops {
+    tiles_x: usize,
+    tops: Vec<f32>,
+}
+
+impl LocalTops {
+    fn new(dem: &EquirectMap, reach: f64) -> LocalTops {
+        let (w, h) = (dem.width, dem.height);
+        let (tx, ty) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let mut tile_max = vec![f32::NEG_INFINITY; tx * ty];
+        for row in 0..h {
+            for col in 0..w {
+                let t = &mut tile_max[(row / TILE) * tx + col / TILE];
+                *t = t.max(dem.data[row * w + col]);
+            }
+        }
+        let (d_lat, d_lon) = (PI / h as f64, TAU / w as f64);
+        // Tile rows within reach, one tile of margin.
+        let ry = (reach / d_lat / TILE as f64).ceil() as usize + 1;
+        let mut tops = vec![0.0f32; tx * ty];
+        let mut column = vec![f32::NEG_INFINITY; tx];
+        for band in 0..ty {
+            let (r0, r1) = (band.saturating_sub(ry), (band + ry).min(ty - 1));
+            column.fill(f32::NEG_INFINITY);
+            for r in r0..=r1 {
+                for (c, v) in column.iter_mut().zip(&tile_max[r * tx..(r + 1) * tx]) {
+                    *c = c.max(*v);
+                }
+            }
+            // Longitudes within reach of the band's most poleward cell:
+            // |Δlon| ≤ asin(sin reach / cos lat), all of them past a pole.
+            let lat_edge = |row: usize| (FRAC_PI_2 - row as f64 * d_lat).abs();
+            let pole_lat = lat_edge(band * TILE).max(lat_edge(((band + 1) * TILE).min(h)));
+            let ratio = reach.sin() / pole_lat.cos().max(0.0);
+            let rx = if ratio < 1.0 && pole_lat + reach < FRAC_PI_2 {
+                (ratio.asin() / d_lon / TILE as f64).ceil() as usize + 1
+            } else {
+                tx
+            };
+            for c in 0..tx {
+                let top = if 2 * rx + 1 >= tx {
+                    column.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b))
+                } else {
+                    (0..=2 * rx)
+                        .map(|k| column[(c + tx + k - rx) % tx])
+                        .fold(f32::NEG_INFINITY, f32::max)
+                };
+                tops[band * tx + c] = top;
+            }
+        }
+        LocalTops { tiles_x: tx, tops }
+    }
+
+    /// The bound for cell (col, row).
+    #[inline]
+    fn at(&self, col: usize, row: usize) -> f64 {
+        self.tops[(row / TILE) * self.tiles_x + col / TILE] as f64
+    }
 }
 
 /// The march of one DEM cell.
@@ -532,6 +599,47 @@ mod tests {
         let map = HorizonMap::compute(&dem, 1e5, 8);
         assert_eq!(map.max_elevation(), 0.0);
         assert_eq!(map.relief_factor(0.3, 1.0, 2.0, 0.001, 0.0047), 1.0);
+    }
+
+    /// The local bound (tiles) ends marches early but changes no value:
+    /// the same DEM marched with the global maximum as the bound agrees,
+    /// also across the poles and the date line.
+    #[test]
+    fn local_bounds_change_no_value() {
+        let (w, h) = (96, 48);
+        let mut data = vec![0.0f32; w * h];
+        for (k, v) in data.iter_mut().enumerate() {
+            let (i, j) = ((k % w) as f64, (k / w) as f64);
+            *v = (400.0 * (0.7 * i).sin() * (0.45 * j).cos() + 250.0 * (0.13 * i * j).sin()) as f32;
+        }
+        let dem = EquirectMap::new(w, h, data);
+        let radius = 2e4;
+        let fast = HorizonMap::compute(&dem, radius, 8);
+        let (lo, hi) = dem.range();
+        let reach = ((radius + lo as f64) / (radius + hi as f64)).acos();
+        let step = 0.5 * PI / h as f64;
+        let trig: Vec<(f64, f64)> = (1..=(reach / step).ceil() as usize + 1)
+            .map(|k| ((k as f64 * step).cos(), (k as f64 * step).sin()))
+            .collect();
+        let dirs: Vec<(f64, f64)> = (0..8)
+            .map(|k| ((TAU * k as f64 / 8.0).cos(), (TAU * k as f64 / 8.0).sin()))
+            .collect();
+        let march = March {
+            dem: &dem,
+            radius,
+            r_max: radius + hi as f64,
+            trig: &trig,
+        };
+        let mut cell = [0.0f32; 8];
+        for row in 0..h {
+            for col in 0..w {
+                march.cell(col, row, &dirs, &mut cell);
+                for (k, v) in cell.iter().enumerate() {
+                    assert_eq!(*v as f64, fast.cell(col, row, k), "({col}, {row}, {k})");
+                }
+            }
+        }
+        assert!(fast.max_elevation() > 0.05);
     }
 
     /// A single tall column: a cell next to it sees it at the elevation
