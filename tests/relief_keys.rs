@@ -45,18 +45,66 @@ fn each_bad_dem_or_key_is_one_line_naming_it() {
     let missing = dir.path().join("no-such.tiff");
     assert!(scene_with(&key(&good, &cache, "1000.0", "16", "\"auto\"")).is_ok());
     let cases = [
-        (key(&nan, &cache, "1.0", "16", "\"auto\""), "body.shadows.dem", Some("nan.tiff")),
-        (key(&tall, &cache, "1000.0", "16", "\"auto\""), "body.shadows.dem", Some("tall.tiff")),
-        (key(&huge, &cache, "1.0", "64", "\"auto\""), "body.shadows.dem", Some("huge.tiff")),
-        (key(&missing, &cache, "1.0", "16", "\"auto\""), "body.shadows.dem", Some("no-such.tiff")),
-        (key(&good, &cache, "nan", "16", "\"auto\""), "body.shadows.scale", None),
-        (key(&good, &cache, "0.0", "16", "\"auto\""), "body.shadows.scale", None),
-        (key(&good, &cache, "-1.0", "16", "\"auto\""), "body.shadows.scale", None),
-        (key(&good, &cache, "1.0", "3", "\"auto\""), "body.shadows.azimuths", None),
-        (key(&good, &cache, "1.0", "65", "\"auto\""), "body.shadows.azimuths", None),
-        (key(&good, &cache, "1.0", "-16", "\"auto\""), "body.shadows.azimuths", None),
-        (key(&good, &cache, "1.0", "16", "\"sometimes\""), "sometimes", None),
-        (key(&good, &cache, "1.0", "16.5", "\"auto\""), "azimuths", None),
+        (
+            key(&nan, &cache, "1.0", "16", "\"auto\""),
+            "body.shadows.dem",
+            Some("nan.tiff"),
+        ),
+        (
+            key(&tall, &cache, "1000.0", "16", "\"auto\""),
+            "body.shadows.dem",
+            Some("tall.tiff"),
+        ),
+        (
+            key(&huge, &cache, "1.0", "64", "\"auto\""),
+            "body.shadows.dem",
+            Some("huge.tiff"),
+        ),
+        (
+            key(&missing, &cache, "1.0", "16", "\"auto\""),
+            "body.shadows.dem",
+            Some("no-such.tiff"),
+        ),
+        (
+            key(&good, &cache, "nan", "16", "\"auto\""),
+            "body.shadows.scale",
+            None,
+        ),
+        (
+            key(&good, &cache, "0.0", "16", "\"auto\""),
+            "body.shadows.scale",
+            None,
+        ),
+        (
+            key(&good, &cache, "-1.0", "16", "\"auto\""),
+            "body.shadows.scale",
+            None,
+        ),
+        (
+            key(&good, &cache, "1.0", "3", "\"auto\""),
+            "body.shadows.azimuths",
+            None,
+        ),
+        (
+            key(&good, &cache, "1.0", "65", "\"auto\""),
+            "body.shadows.azimuths",
+            None,
+        ),
+        (
+            key(&good, &cache, "1.0", "-16", "\"auto\""),
+            "body.shadows.azimuths",
+            None,
+        ),
+        (
+            key(&good, &cache, "1.0", "16", "\"sometimes\""),
+            "sometimes",
+            None,
+        ),
+        (
+            key(&good, &cache, "1.0", "16.5", "\"auto\""),
+            "azimuths",
+            None,
+        ),
     ];
     for (text, needle, file) in cases {
         let e = match scene_with(&text) {

@@ -22,6 +22,8 @@ pub struct FrameShadows<'a> {
     /// sin(highest horizon + Sun radius): a sample whose Sun stands higher
     /// is wholly lit and skips the lookup.
     sin_clear: f64,
+    /// sin(Sun radius): a sample whose Sun stands lower is dark.
+    sin_radius: f64,
 }
 
 impl<'a> FrameShadows<'a> {
@@ -32,6 +34,7 @@ impl<'a> FrameShadows<'a> {
             map,
             sun_radius,
             sin_clear: clear.sin(),
+            sin_radius: sun_radius.sin(),
         }
     }
 
@@ -43,12 +46,17 @@ impl<'a> FrameShadows<'a> {
         if sin_e >= self.sin_clear {
             return 1.0;
         }
-        if sin_e <= -self.sun_radius.sin() {
+        if sin_e <= -self.sin_radius {
             return 0.0;
         }
         let rxy = n.x.hypot(n.y);
         let lat = n.z.atan2(rxy);
         let lon = n.y.atan2(n.x);
+        // Wholly above every horizon the lookup would read (sin(b + ρ) ≤
+        // sin b + ρ): lit.
+        if sin_e >= self.map.sin_elevation_bound(lat, lon) + self.sun_radius {
+            return 1.0;
+        }
         // East and north of the sphere at n (east arbitrary at a pole).
         let east = if rxy > 1e-12 {
             DVec3::new(-n.y / rxy, n.x / rxy, 0.0)

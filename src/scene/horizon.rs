@@ -47,6 +47,10 @@ pub struct HorizonMap {
     data: Vec<f32>,
     /// Largest value of `data`.
     max: f64,
+    /// Per cell: the sine of the largest elevation of the 2 × 2 cells from
+    /// it east and south (those a bilinear lookup there reads), over all
+    /// azimuths, rounded up.
+    block_max: Vec<f32>,
 }
 
 impl std::fmt::Debug for HorizonMap {
@@ -131,13 +135,42 @@ impl HorizonMap {
 
     fn from_data(width: usize, height: usize, azimuths: usize, data: Vec<f32>) -> HorizonMap {
         let max = data.iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
+        let cell_max: Vec<f32> = data
+            .chunks(azimuths)
+            .map(|c| c.iter().fold(0.0f32, |a, &b| a.max(b)))
+            .collect();
+        let mut block_max = vec![0.0f32; width * height];
+        for j in 0..height {
+            let j1 = (j + 1).min(height - 1);
+            for i in 0..width {
+                let i1 = if i + 1 == width { 0 } else { i + 1 };
+                let top = cell_max[j * width + i]
+                    .max(cell_max[j * width + i1])
+                    .max(cell_max[j1 * width + i])
+                    .max(cell_max[j1 * width + i1]);
+                block_max[j * width + i] = ((top as f64).sin() + 1e-6) as f32;
+            }
+        }
         HorizonMap {
             width,
             height,
             azimuths,
             data,
             max,
+            block_max,
         }
+    }
+
+    /// An upper bound of sin [`Self::elevation`] at latitude/longitude
+    /// [rad] in every azimuth: one read.
+    #[inline]
+    pub fn sin_elevation_bound(&self, lat: f64, lon: f64) -> f64 {
+        let (w, h) = (self.width, self.height);
+        let x = (lon + PI) / TAU * w as f64 - 0.5;
+        let y = ((FRAC_PI_2 - lat) / PI * h as f64 - 0.5).clamp(0.0, (h - 1) as f64);
+        let y0 = (y as usize).min(h - 2);
+        let i0 = (x.floor() as i64).rem_euclid(w as i64) as usize;
+        self.block_max[y0 * w + i0] as f64
     }
 
     /// Horizon map of `dem` (heights [m] above a sphere of `radius` [m])
@@ -640,6 +673,17 @@ mod tests {
             }
         }
         assert!(fast.max_elevation() > 0.05);
+        // The lookup's bound holds everywhere, and is reached somewhere.
+        let mut tight = false;
+        for k in 0..20_000 {
+            let t = k as f64;
+            let (lat, lon, az) = ((t * 0.618).sin() * 1.57, (t * 0.377).sin() * 3.3, t * 0.7);
+            let e = fast.elevation(lat, lon, az).sin();
+            let b = fast.sin_elevation_bound(lat, lon);
+            assert!(e <= b, "({lat}, {lon}, {az}): sin {e} > bound {b}");
+            tight |= b > 1e-5 && e > 0.9 * b;
+        }
+        assert!(tight);
     }
 
     /// A single tall column: a cell next to it sees it at the elevation
