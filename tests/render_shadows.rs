@@ -237,6 +237,14 @@ fn a_corrupt_cache_is_rebuilt_never_trusted() {
         }
         assert_eq!(std::fs::read(&file).unwrap(), good, "{what}: rewritten");
     }
+    // A cache directory that cannot be created (a file is in its way)
+    // loses the cache, not the map.
+    let blocked = dir.path().join("blocked");
+    std::fs::write(&blocked, b"not a directory").unwrap();
+    let (uncached, outcome, _) =
+        HorizonMap::load_or_compute(&dem_path, &dem, &params, &blocked.join("cache")).unwrap();
+    assert_eq!(outcome, CacheOutcome::Computed);
+    assert_eq!(uncached.cell(370, 120, 3), first.cell(370, 120, 3));
     // Another azimuth count is another key: its own file.
     let eight = params;
     let sixteen = HorizonParams {

@@ -274,8 +274,9 @@ impl HorizonMap {
 
     /// The cached map for `dem` (read from `dem_path`, heights [m] after
     /// `scale`) if `cache_dir` holds a valid one, else computed and written
-    /// there (to a temporary name, then renamed). A cache file whose key,
-    /// size, checksum or values do not check out is rebuilt.
+    /// there (to a temporary name, then renamed; a directory that cannot be
+    /// written only loses the cache, with a warning). A cache file whose
+    /// key, size, checksum or values do not check out is rebuilt.
     pub fn load_or_compute(
         dem_path: &Path,
         dem: &EquirectMap,
@@ -293,7 +294,11 @@ impl HorizonMap {
             }
         }
         let map = HorizonMap::compute(dem, params.radius, params.azimuths);
-        write_cache(&file, &key, &map)?;
+        // A cache that cannot be written costs the next run the compute,
+        // not this one its render.
+        if let Err(e) = write_cache(&file, &key, &map) {
+            tracing::warn!("horizon map not cached: {e}");
+        }
         let outcome = if existed {
             CacheOutcome::Rebuilt
         } else {

@@ -471,7 +471,7 @@ fn relief_shadows(s: &ShadowsFile, base: &Path, radius: f64) -> Result<horizon::
     let start = std::time::Instant::now();
     let (map, cache, cache_file) =
         horizon::HorizonMap::load_or_compute(&path, &dem, &params, &cache_dir)
-            .map_err(|e| Error::invalid(format!("{key}.cache_dir"), e.to_string()))?;
+            .map_err(|e| Error::invalid(format!("{key}.dem"), e.to_string()))?;
     let (h_min, h_max) = dem.range();
     Ok(horizon::ReliefShadows {
         map,
