@@ -156,6 +156,7 @@ impl Rect {
 }
 
 /// Everything the per-cap loop needs, precomputed once per frame.
+#[derive(Clone, Copy)]
 pub struct Frame<'a> {
     pub lune: Lune,
     pub camera: &'a Pinhole,
@@ -193,6 +194,8 @@ pub struct Frame<'a> {
     /// Relative spread of the k×k samples above which the adaptive filter
     /// takes the exact mean.
     pub map_tolerance: f64,
+    /// The relief's cast shadows, when this frame applies them.
+    pub shadows: Option<super::relief::FrameShadows<'a>>,
 }
 
 /// Radius of the solar photosphere [m].
@@ -424,7 +427,8 @@ impl Frame<'_> {
         let needs_body_dir = self.body.albedo_map.is_some()
             || !self.body.parameter_maps.is_empty()
             || self.body.relief.height.is_some()
-            || self.body.relief.normals.is_some();
+            || self.body.relief.normals.is_some()
+            || self.shadows.is_some();
         let mut total = 0.0;
         let [upper, lower] = rows;
         self.corner_row(self.theta(cell.t0), cell.s0, ds, leaf.n_s, lower);
@@ -596,7 +600,7 @@ impl Frame<'_> {
                 return 0.0;
             }
             let g = ScatteringGeometry { mu0, mu, cos_g };
-            let shadow = self.sun_fraction(n_local * r);
+            let shadow = self.sun_fraction(n_local * r) * self.relief_shadow(n_local, n_body, r);
             return self.reflect(model, &g, albedo, n_body) * (AU * AU / sun_sq) * mu / cam_sq
                 * shadow;
         }
@@ -616,9 +620,27 @@ impl Frame<'_> {
         }
     }
 
+    /// Share of the Sun's power that clears the relief's horizon at the
+    /// point `r` n_local (Lester coordinates; `n_body` the same direction
+    /// body-fixed): one horizon-map lookup, 1 when the frame applies no
+    /// cast shadows.
+    #[inline]
+    pub(super) fn relief_shadow(&self, n_local: DVec3, n_body: DVec3, r: f64) -> f64 {
+        let Some(shadows) = &self.shadows else {
+            return 1.0;
+        };
+        let l = if self.distant {
+            DVec3::X
+        } else {
+            (DVec3::new(self.lune.sun_range, 0.0, 0.0) - n_local * r).normalize()
+        };
+        let [xb, yb, zb] = self.axes_body;
+        shadows.factor(n_body, xb * l.x + yb * l.y + zb * l.z)
+    }
+
     /// Integrand with displacement and/or normal maps: local radius from the
     /// height, geometric normal from its slopes, shading normal from the
-    /// normal map. Shadows cast by relief are not modelled.
+    /// normal map; cast shadows from the horizon map (`relief_shadow`).
     #[allow(clippy::too_many_arguments)]
     fn relief_integrand(
         &self,
@@ -672,6 +694,7 @@ impl Frame<'_> {
         self.reflect(model, &g, albedo, n_body) * (AU * AU / sun_sq) * projected * area_scale
             / cam_sq
             * self.sun_fraction(p)
+            * self.relief_shadow(n_local, n_body, r)
     }
 }
 

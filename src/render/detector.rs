@@ -92,6 +92,10 @@ pub struct Summary {
     /// their measured error and why ([`crate::planner`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub plan: Option<crate::fidelity::Plan>,
+    /// For a body with `shadows`: whether the relief's cast shadows were
+    /// applied and why ([`super::relief::decide_for_frame`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub relief_shadows: Option<super::relief::ShadowDecision>,
 }
 
 /// What the sensor chain did (`summary.json`, `sensor`).
@@ -223,6 +227,7 @@ pub fn render_scene(
             sensor,
             lime: lime_comparison(scene, spectral.all_caps, effective_all_caps),
             plan: None,
+            relief_shadows: spectral.stats.shadows,
         },
     };
     images.check_finite()?;

@@ -216,7 +216,7 @@ impl InteriorMask {
                             Some((l, q)) => {
                                 let (f, exact) = l.pixel_flux(frame, q);
                                 counts.map_exact += usize::from(exact);
-                                f
+                                f * rays.relief_shadow_at(frame, i, j)
                             }
                             None => {
                                 let (f, points, exact) = rays.pixel_flux(frame, i, j);
@@ -379,6 +379,12 @@ impl Lattice {
             .extend((0..roi.width()).map(|ii| (ii / step + 1, ii % step)));
         self.nodes.clear();
         self.nodes.resize(self.cols * rows, None);
+        // Nodes hold the smooth factors: a cast shadow is not smooth, so
+        // each pixel applies its own (`relief_shadow_at`).
+        let frame = &Frame {
+            shadows: None,
+            ..*frame
+        };
         let origin_u = roi.x0 as f64 + 0.5 - step as f64;
         let origin_v = roi.y0 as f64 + 0.5 - step as f64;
         self.nodes
@@ -672,6 +678,18 @@ impl PixelRays {
         let d_len = s.d.length();
         let omega = 1.0 / (self.fx * self.fy * d_len * d_len * d_len);
         integrand * dist * dist / mu * omega
+    }
+
+    /// The relief's cast-shadow factor at the centre of pixel (i, j).
+    #[inline]
+    fn relief_shadow_at(&self, frame: &Frame, i: usize, j: usize) -> f64 {
+        if frame.shadows.is_none() {
+            return 1.0;
+        }
+        match self.surface(i as f64 + 0.5, j as f64 + 0.5) {
+            Some(s) => frame.relief_shadow(s.n_local, s.n_body, self.radius),
+            None => 0.0,
+        }
     }
 
     /// Whether interior pixels may interpolate a [`Lattice`]: no occulter

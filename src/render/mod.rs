@@ -20,6 +20,7 @@ pub mod field;
 pub mod interior;
 pub mod lune;
 pub mod output;
+pub mod relief;
 
 use std::time::Instant;
 
@@ -62,6 +63,9 @@ pub struct RenderStats {
     pub roi: Rect,
     /// Wall time of each stage.
     pub stages: StageTimes,
+    /// Whether the relief's cast shadows were applied, and why (None: the
+    /// body has no `shadows`).
+    pub shadows: Option<relief::ShadowDecision>,
 }
 
 /// Wall time [s] of the stages of one [`Renderer::render_flux`] call, in
@@ -192,7 +196,17 @@ impl Renderer {
             map_filter: settings.map_filter,
             map_tolerance: settings.map_tolerance,
             occulter: occulter_near(state, &lune, body.radius),
+            shadows: None,
         };
+        let mut frame = frame;
+        if let Some(s) = &body.relief.shadows {
+            let decision = relief::decide_for_frame(s, &frame);
+            if decision.applied {
+                let sun_radius = (caps::SUN_RADIUS / lune.sun_range).min(1.0).asin();
+                frame.shadows = Some(relief::FrameShadows::new(&s.map, sun_radius));
+            }
+            stats.shadows = Some(decision);
+        }
 
         // Lay out the caps: recursive split with culling.
         let t_layout = Instant::now();

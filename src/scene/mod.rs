@@ -6,6 +6,7 @@
 //! the file, and every value is checked before anything is rendered.
 
 pub mod camera;
+pub mod horizon;
 pub mod maps;
 
 use std::path::{Path, PathBuf};
@@ -86,6 +87,8 @@ pub struct Relief {
     pub height: Option<(EquirectMap, EquirectMap, EquirectMap)>,
     /// Tangent-space shading normals.
     pub normals: Option<NormalMap>,
+    /// Shadows cast by the relief of a DEM (`[body] shadows`).
+    pub shadows: Option<std::sync::Arc<horizon::ReliefShadows>>,
 }
 
 impl Body {
@@ -342,6 +345,7 @@ struct BodyFile {
     albedo_spectrum: Option<Vec<[f64; 2]>>,
     displacement_map: Option<DisplacementMapFile>,
     normal_map: Option<NormalMapFile>,
+    shadows: Option<ShadowsFile>,
     parameter_maps: Option<Vec<ParameterMapFile>>,
     #[serde(default)]
     lime_reference: bool,
@@ -445,6 +449,69 @@ struct DisplacementMapFile {
 #[serde(deny_unknown_fields)]
 struct NormalMapFile {
     path: PathBuf,
+}
+
+/// `[body] shadows`: the DEM whose relief casts shadows.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ShadowsFile {
+    dem: PathBuf,
+    scale: f64,
+    #[serde(default = "default_azimuths")]
+    azimuths: i64,
+    cache_dir: Option<PathBuf>,
+    #[serde(default)]
+    mode: horizon::ShadowMode,
+}
+
+fn default_azimuths() -> i64 {
+    horizon::DEFAULT_AZIMUTHS as i64
+}
+
+/// The horizon map of `[body] shadows`, from its cache or computed.
+fn relief_shadows(s: &ShadowsFile, base: &Path, radius: f64) -> Result<horizon::ReliefShadows> {
+    let key = "body.shadows";
+    if !(s.scale.is_finite() && s.scale > 0.0) {
+        return Err(Error::invalid(
+            format!("{key}.scale"),
+            format!("need a finite value > 0, got {}", s.scale),
+        ));
+    }
+    let (lo, hi) = horizon::AZIMUTH_RANGE;
+    if !(lo as i64..=hi as i64).contains(&s.azimuths) {
+        return Err(Error::invalid(
+            format!("{key}.azimuths"),
+            format!("need {lo} … {hi}, got {}", s.azimuths),
+        ));
+    }
+    let azimuths = s.azimuths as usize;
+    let path = resolve(base, &s.dem);
+    let mut dem = load_map(base, &s.dem, &format!("{key}.dem"))?;
+    dem.scale(s.scale);
+    horizon::check_dem(&dem, azimuths, &path, key)?;
+    let cache_dir = match &s.cache_dir {
+        Some(d) => resolve(base, d),
+        None => horizon::default_cache_dir(),
+    };
+    let params = horizon::HorizonParams {
+        radius,
+        scale: s.scale,
+        azimuths,
+    };
+    let start = std::time::Instant::now();
+    let (map, cache, cache_file) =
+        horizon::HorizonMap::load_or_compute(&path, &dem, &params, &cache_dir)
+            .map_err(|e| Error::invalid(format!("{key}.dem"), e.to_string()))?;
+    let (h_min, h_max) = dem.range();
+    Ok(horizon::ReliefShadows {
+        map,
+        mode: s.mode,
+        cell: radius * std::f64::consts::PI / dem.height as f64,
+        relief: (h_max - h_min) as f64,
+        cache,
+        cache_file,
+        seconds: start.elapsed().as_secs_f64(),
+    })
 }
 
 #[derive(Deserialize)]
@@ -740,6 +807,9 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
         height.scale(d.scale);
         let (d_lat, d_lon) = height.gradients();
         relief.height = Some((height, d_lat, d_lon));
+    }
+    if let Some(s) = &body.shadows {
+        relief.shadows = Some(std::sync::Arc::new(relief_shadows(s, body_base, radius)?));
     }
     if let Some(n) = &body.normal_map {
         let p = resolve(body_base, &n.path);

@@ -1,0 +1,180 @@
+//! Cast shadows of relief in a frame: the per-sample factor from the
+//! body's horizon map ([`crate::scene::horizon`]) and the per-frame
+//! decision whether the frame resolves them at all.
+//!
+//! A sample's factor is one horizon lookup: the Sun's elevation and
+//! azimuth in the sphere's local frame at the sample, and the lit share
+//! of the solar disk above the relief's horizon there.
+
+use glam::DVec3;
+use serde::Serialize;
+
+use super::caps::Frame;
+use crate::scene::horizon::{HorizonMap, ReliefShadows, ShadowMode};
+
+/// What the per-sample loops need of the horizon map in one frame.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameShadows<'a> {
+    /// The body's horizon map.
+    pub map: &'a HorizonMap,
+    /// The Sun's apparent radius at the body [rad].
+    pub sun_radius: f64,
+    /// sin(highest horizon + Sun radius): a sample whose Sun stands higher
+    /// is wholly lit and skips the lookup.
+    sin_clear: f64,
+    /// sin(Sun radius): a sample whose Sun stands lower is dark.
+    sin_radius: f64,
+}
+
+impl<'a> FrameShadows<'a> {
+    /// Shadows from `map` with the Sun `sun_radius` [rad] across.
+    pub fn new(map: &'a HorizonMap, sun_radius: f64) -> Self {
+        let clear = (map.max_elevation() + sun_radius).min(std::f64::consts::FRAC_PI_2);
+        FrameShadows {
+            map,
+            sun_radius,
+            sin_clear: clear.sin(),
+            sin_radius: sun_radius.sin(),
+        }
+    }
+
+    /// Lit share at the point of body-fixed unit direction `n` (the
+    /// sphere's normal), the Sun along body-fixed unit vector `l` from it.
+    #[inline]
+    pub fn factor(&self, n: DVec3, l: DVec3) -> f64 {
+        let sin_e = l.dot(n);
+        if sin_e >= self.sin_clear {
+            return 1.0;
+        }
+        if sin_e <= -self.sin_radius {
+            return 0.0;
+        }
+        let rxy = n.x.hypot(n.y);
+        let lat = n.z.atan2(rxy);
+        let lon = n.y.atan2(n.x);
+        // Wholly above every horizon the lookup would read (sin(b + ρ) ≤
+        // sin b + ρ): lit.
+        if sin_e >= self.map.sin_elevation_bound(lat, lon) + self.sun_radius {
+            return 1.0;
+        }
+        // East and north of the sphere at n (east arbitrary at a pole).
+        let east = if rxy > 1e-12 {
+            DVec3::new(-n.y / rxy, n.x / rxy, 0.0)
+        } else {
+            DVec3::Y
+        };
+        let north = n.cross(east);
+        let azimuth = l.dot(north).atan2(l.dot(east));
+        let elevation = sin_e.clamp(-1.0, 1.0).asin();
+        self.map
+            .relief_factor(lat, lon, azimuth, elevation, self.sun_radius)
+    }
+}
+
+/// Which path a frame took for cast shadows, and why (`summary.json`).
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct ShadowDecision {
+    /// Whether the frame applied the horizon map.
+    pub applied: bool,
+    /// Why: `"mode = always"`, `"mode = never"`, `"auto: no shadow in the
+    /// DEM"`, `"auto: resolved"` or `"auto: below a pixel"`.
+    pub reason: &'static str,
+    /// Longest visible shadow on the image [px] (`auto`'s measure).
+    pub shadow_px: f64,
+    /// Lowest Sun elevation over the visible lit disk [deg].
+    pub min_sun_elevation_deg: f64,
+    /// Surface footprint [m] of a pixel where the shadow is longest.
+    pub pixel_footprint_m: f64,
+    /// The DEM's cell [m].
+    pub dem_cell_m: f64,
+}
+
+/// Length on the image [px] that a shadow must reach to be applied in
+/// `auto` mode.
+pub const AUTO_MIN_PIXELS: f64 = 0.1;
+
+/// Samples per axis of the lune scanned by [`decide_for_frame`].
+const SCAN: usize = 32;
+
+/// Whether `frame` resolves the relief's shadows. `auto` applies them when
+/// the longest visible shadow on the image reaches [`AUTO_MIN_PIXELS`].
+/// A step of height h with the Sun at elevation e and the camera at phase
+/// α in the same vertical plane shows a shadow of h sin α / sin e across
+/// the line of sight (the rest hides behind the step); h is the DEM's
+/// height range and 1/sin e is capped where the shadow would outrun the
+/// curvature's reach √(2 R h). Scanned over a 32 × 32 grid of the
+/// visible lit lune, each point's length over its pixel footprint d/f.
+pub fn decide_for_frame(shadows: &ReliefShadows, frame: &Frame) -> ShadowDecision {
+    let lune = &frame.lune;
+    let (h, r) = (shadows.relief, frame.radius);
+    let f = frame.camera.fx.max(frame.camera.fy);
+    let cam = lune.camera_local();
+    let min_sin_e = h / (2.0 * r * h).sqrt().max(h);
+    let mut d = ShadowDecision {
+        dem_cell_m: shadows.cell,
+        min_sun_elevation_deg: 90.0,
+        ..Default::default()
+    };
+    let (t_lo, t_hi) = (lune.theta_min, std::f64::consts::PI - lune.theta_min);
+    for a in 0..SCAN {
+        let theta = t_lo + (a as f64 + 0.5) / SCAN as f64 * (t_hi - t_lo);
+        let (st, ct) = theta.sin_cos();
+        let (lo, hi) = lune.phi_range(st);
+        for b in 0..SCAN {
+            let phi = lo + (b as f64 + 0.5) / SCAN as f64 * (hi - lo);
+            let n = DVec3::new(st * phi.cos(), st * phi.sin(), ct);
+            let dist = (cam - n * r).length();
+            let sin_e = n.x.max(0.0);
+            let px = h * lune.alpha.sin() / sin_e.max(min_sin_e) * f / dist;
+            d.min_sun_elevation_deg = d.min_sun_elevation_deg.min(sin_e.asin().to_degrees());
+            if px >= d.shadow_px {
+                d.shadow_px = px;
+                d.pixel_footprint_m = dist / f;
+            }
+        }
+    }
+    let any = shadows.map.max_elevation() > 0.0;
+    (d.applied, d.reason) = match shadows.mode {
+        ShadowMode::Never => (false, "mode = never"),
+        ShadowMode::Always => (true, "mode = always"),
+        ShadowMode::Auto if !any => (false, "auto: no shadow in the DEM"),
+        ShadowMode::Auto if d.shadow_px >= AUTO_MIN_PIXELS => (true, "auto: resolved"),
+        ShadowMode::Auto => (false, "auto: below a pixel"),
+    };
+    d
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::horizon::local_frame;
+    use crate::scene::EquirectMap;
+
+    /// A wall east of a point: the factor equals the disk share above the
+    /// wall's elevation for a Sun in the east, 1 for a Sun in the west.
+    #[test]
+    fn the_factor_reads_the_horizon_in_the_suns_azimuth() {
+        let (w, h) = (128, 64);
+        let mut data = vec![0.0f32; w * h];
+        for row in 0..h {
+            data[row * w + 70] = 3000.0;
+        }
+        let dem = EquirectMap::new(w, h, data);
+        let map = HorizonMap::compute(&dem, 1e5, 16);
+        let (lat, lon) = dem.lat_lon_of(67.0, 31.0);
+        let (up, east, _) = local_frame(lat, lon);
+        let horizon = map.cell(67, 31, 0);
+        assert!(horizon > 0.0);
+        let rho = 0.005;
+        let shadows = FrameShadows::new(&map, rho);
+        for e in [horizon - 0.004, horizon, horizon + 0.002] {
+            let sun_east = (up * e.sin() + east * e.cos()).normalize();
+            let want = crate::scene::horizon::disk_fraction_above(e, horizon, rho)
+                / crate::scene::horizon::disk_fraction_above(e, 0.0, rho);
+            let got = shadows.factor(up, sun_east);
+            assert!((got - want).abs() < 1e-9, "e {e}: {got} vs {want}");
+            let sun_west = (up * e.sin() - east * e.cos()).normalize();
+            assert_eq!(shadows.factor(up, sun_west), 1.0);
+        }
+    }
+}
