@@ -173,6 +173,32 @@ fn render_writes_frame_zero_of_the_sensor() {
     assert!(images.summary.sensor.is_some());
 }
 
+/// `camera.sensor_frame` (a dataset item's noise seed) picks the frame
+/// the render draws: the sensor's own frame of that index.
+#[test]
+fn render_draws_the_cameras_sensor_frame() {
+    let mut scene = flat_scene(16, 3, "");
+    // An exposure at 30 % of the full well, where the noise shows.
+    let rate = common::render(&scene).electron_rate[0] as f64;
+    scene.camera.exposure = 0.3 * FULL_WELL / rate;
+    scene.camera.sensor_frame = 12_345;
+    let images = common::render(&scene);
+    let t = scene.camera.exposure;
+    let frame = sensor_of(&scene).expose(&images.electron_rate, t, 12_345);
+    assert!(images.dn == frame.dn, "the render draws frame 12345");
+    let zero = sensor_of(&scene).expose(&images.electron_rate, t, 0);
+    let differing = images
+        .dn
+        .iter()
+        .zip(&zero.dn)
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(
+        differing > images.dn.len() / 2,
+        "{differing} pixels differ from frame 0"
+    );
+}
+
 #[test]
 fn saturation_sits_at_the_full_well_and_the_bit_depth() {
     // 16 bits: the full well saturates first, at round(offset + K · FW).

@@ -129,6 +129,8 @@ impl Worker {
     fn write_item(&mut self, spec: &Spec, item: &Item, dir: &Path) -> Result<ItemRecord> {
         let mut scene = spec.scene.clone();
         scene.state = item.state;
+        // With `[camera.sensor]`, the item's own temporal noise.
+        scene.camera.sensor_frame = item.noise_seed;
         let pin = scene.camera.pinhole.clone();
         if spec.outputs.image {
             let (renderer, pixels) = (&mut self.renderer, &self.pixels);

@@ -376,19 +376,20 @@ fn detect(
     d
 }
 
-/// Replaces the ideal detector's DN by frame 0 of the sensor chain.
+/// Replaces the ideal detector's DN by the sensor chain's frame
+/// `camera.sensor_frame`.
 fn apply_sensor(scene: &Scene, params: SensorParams, d: &mut Detected) -> SensorSummary {
     let start = Instant::now();
     let cam = &scene.camera;
     let pin = &cam.pinhole;
     let sensor = Sensor::new(params, cam.readout(), pin.width, pin.height);
-    let frame = sensor.expose(&d.electron_rate, cam.exposure, 0);
+    let frame = sensor.expose(&d.electron_rate, cam.exposure, cam.sensor_frame);
     d.peak_dn = frame.dn.iter().copied().max().unwrap_or(0) as u32;
     d.saturated = frame.saturated;
     d.dn = frame.dn;
     SensorSummary {
         params,
-        frame: 0,
+        frame: cam.sensor_frame,
         sensor_ms: start.elapsed().as_secs_f64() * 1e3,
     }
 }

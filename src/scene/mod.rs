@@ -55,6 +55,10 @@ pub struct Camera {
     /// The optics' point spread function (`camera.psf`), integrated over
     /// each pixel; None: the pinhole's ideal image.
     pub psf: Option<Psf>,
+    /// Which frame of the sensor's temporal noise a render draws (0 for a
+    /// scene file; a dataset item's own noise seed, so items differ in
+    /// their noise but share the camera's PRNU and DSNU).
+    pub sensor_frame: u64,
 }
 
 impl Camera {
@@ -1093,6 +1097,7 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
         transmission,
         sensor,
         psf,
+        sensor_frame: 0,
     })
 }
 

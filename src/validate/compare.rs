@@ -446,6 +446,7 @@ pub fn build_scene(
         transmission: Response::Constant(1.0),
         sensor: None,
         psf: None,
+        sensor_frame: 0,
     };
     let sun = SolarSpectrum::from_csv(&options.solar_spectrum, Some(1361.0))?;
     let body = if choice.name == "moon" {
