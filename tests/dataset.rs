@@ -3,7 +3,8 @@
 //! Slurm and Kubernetes variables select the shard; bad specs and shards
 //! are one-line errors; sampled poses stay inside their ranges.
 
-use std::collections::BTreeMap;
+mod common;
+use common::file_tree as tree;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -53,24 +54,6 @@ fn run_ok(args: &[&str], env: &[(&str, &str)]) -> String {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{args:?} failed: {stderr}");
     String::from_utf8(out.stdout).unwrap()
-}
-
-/// Every file under `dir`, relative path → bytes.
-fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
-                out.insert(rel, std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    out
 }
 
 fn s(p: &Path) -> &str {

@@ -5,7 +5,8 @@
 //! cluster is a failure instead. The Kubernetes manifest's count and
 //! completions are checked against each other here too.
 
-use std::collections::BTreeMap;
+mod common;
+use common::file_tree as tree;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -19,23 +20,6 @@ fn slurm_answers() -> bool {
         .args(["10", "sinfo", "-h"])
         .output()
         .is_ok_and(|o| o.status.success())
-}
-
-fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
-                out.insert(rel, std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    out
 }
 
 fn optistim(args: &[&str]) {
