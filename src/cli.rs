@@ -47,9 +47,10 @@ pub fn render(
     overwrite: bool,
     labels: bool,
 ) -> Result<()> {
-    let label_files = optistim::labels::files::ALL_FILES.iter().filter(|_| labels);
+    let label_files = optistim::labels::files::all_files().filter(|_| labels);
     let files: Vec<_> = RENDER_FILES
         .iter()
+        .copied()
         .chain(label_files)
         .map(|f| out.join(f))
         .collect();

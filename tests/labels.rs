@@ -276,7 +276,7 @@ fn render_labels_writes_the_documented_files() {
         .status()
         .unwrap();
     assert!(status.success());
-    for f in files::ALL_FILES {
+    for f in files::all_files() {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let json: serde_json::Value =

@@ -94,7 +94,7 @@ fn item_files(spec: &Spec) -> Vec<&'static str> {
         f.extend(IMAGE_FILES);
     }
     if spec.outputs.labels {
-        f.extend(labels::files::ALL_FILES);
+        f.extend(labels::files::all_files());
     }
     f.sort_unstable();
     f

@@ -24,18 +24,13 @@ pub const IMAGE_FILES: [&str; 7] = [
     "longitude.tiff",
 ];
 
-/// All files [`write`] creates.
-pub const ALL_FILES: [&str; 9] = [
-    "body_mask.tiff",
-    "lit_mask.tiff",
-    "shadow_mask.tiff",
-    "depth.tiff",
-    "normals.tiff",
-    "latitude.tiff",
-    "longitude.tiff",
-    "labels.json",
-    "coco.json",
-];
+/// File names of the JSON label files.
+pub const JSON_FILES: [&str; 2] = ["labels.json", "coco.json"];
+
+/// All files [`write`] creates: the images, then the JSON files.
+pub fn all_files() -> impl Iterator<Item = &'static str> {
+    IMAGE_FILES.into_iter().chain(JSON_FILES)
+}
 
 /// `labels.json`.
 #[derive(Serialize)]
@@ -65,12 +60,12 @@ pub fn write(dir: &Path, labels: &Labels, image_file: &str) -> Result<()> {
             "body_mask": IMAGE_FILES[0], "lit_mask": IMAGE_FILES[1],
             "shadow_mask": IMAGE_FILES[2], "depth": IMAGE_FILES[3],
             "normals": IMAGE_FILES[4], "latitude": IMAGE_FILES[5],
-            "longitude": IMAGE_FILES[6], "coco": "coco.json",
+            "longitude": IMAGE_FILES[6], "coco": JSON_FILES[1],
         }),
     };
-    write_json(&dir.join("labels.json"), &record)?;
+    write_json(&dir.join(JSON_FILES[0]), &record)?;
     let coco = coco(&[(image_file.to_string(), labels)]);
-    write_json(&dir.join("coco.json"), &coco)
+    write_json(&dir.join(JSON_FILES[1]), &coco)
 }
 
 /// A COCO document over frames (file name, labels): one image and one
