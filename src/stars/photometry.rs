@@ -38,9 +38,12 @@ pub fn electron_rate_per_area(
     transmission: &Response,
     band: [f64; 2],
 ) -> f64 {
-    integrate(band[0], band[1], &[], |l| {
-        spectral_irradiance(v_mag, b_v, l) * electron_response(qe, transmission, l)
-    })
+    let t = temperature_from_b_v(b_v);
+    let scale = V_ZERO_POINT * 10f64.powf(-0.4 * v_mag) / planck_radiance(V_WAVELENGTH, t);
+    scale
+        * integrate(band[0], band[1], &[], |l| {
+            planck_radiance(l, t) * electron_response(qe, transmission, l)
+        })
 }
 
 #[cfg(test)]
