@@ -195,6 +195,50 @@ fn a_star_gives_its_electrons_within_one_percent() {
     }
 }
 
+#[test]
+fn the_observers_velocity_moves_a_star_by_the_aberration_angle() {
+    // 30 km/s along the camera's x axis, the star on the boresight (90°
+    // from the velocity): classically tan θ' = sin θ / (γ (cos θ + β)),
+    // so the star moves toward +x by tan δ = γ β, f γ β pixels.
+    let dir = tempfile::tempdir().unwrap();
+    let (f_px, speed) = (4000.0, 3e4);
+    let shot = sky_shot(radec(30.0, 20.0), 0.0, 64, f_px, "");
+    let x_axis = shot.q * DVec3::X;
+    let catalogue = write_catalogue(dir.path(), &[(30.0, 20.0, 4.0, 0.6)]);
+    let v = x_axis * speed;
+    let centroid = |stars: String| {
+        let mut s = sky_shot(radec(30.0, 20.0), 0.0, 64, f_px, &stars);
+        s.q = shot.q;
+        let e = render(&s.scene(dir.path())).electrons;
+        let (mut sum, mut su, mut sv) = (0.0, 0.0, 0.0);
+        for (k, &x) in e.iter().enumerate() {
+            let x = x as f64;
+            sum += x;
+            su += x * ((k % 64) as f64 + 0.5);
+            sv += x * ((k / 64) as f64 + 0.5);
+        }
+        (su / sum, sv / sum)
+    };
+    let still = centroid(catalogue.clone());
+    let moving = centroid(format!(
+        "{catalogue}observer_velocity = [{:e}, {:e}, {:e}]\n",
+        v.x, v.y, v.z
+    ));
+    let beta = speed / C;
+    let gamma = 1.0 / (1.0 - beta * beta).sqrt();
+    let want = f_px * gamma * beta;
+    println!(
+        "aberration: {:.5} px (closed form {want:.5} px)",
+        moving.0 - still.0
+    );
+    assert!(
+        (still.0 - 32.0).abs() < 1e-3 && (still.1 - 32.0).abs() < 1e-3,
+        "{still:?}"
+    );
+    assert!((moving.0 - still.0 - want).abs() < 2e-3, "{moving:?}");
+    assert!((moving.1 - still.1).abs() < 1e-3);
+}
+
 /// The bundled catalogue as read here (not by the library): HIP, RA, Dec
 /// [deg] moved by linear proper motion to `year`, V.
 fn bundled_at(year: f64) -> Vec<(i64, f64, f64, f64)> {
@@ -517,6 +561,10 @@ fn bad_catalogues_are_one_line_errors_naming_file_line_and_column() {
             "brightness",
         ),
         ("[stars]\ncatalogue = \"missing.csv\"\n", "missing.csv"),
+        (
+            "[stars]\ncatalogue = \"bundled\"\nobserver_velocity = [1e9, 0, 0]\n",
+            "stars.observer_velocity",
+        ),
     ] {
         let err = scene_error(stars);
         assert!(

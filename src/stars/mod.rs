@@ -36,6 +36,9 @@ pub struct StarsFile {
     catalogue_epoch: Option<f64>,
     /// Epoch of the render (ISO text) when the scene has no `state.epoch`.
     epoch: Option<String>,
+    /// The camera's velocity [m/s] in the world (barycentric ICRS) frame:
+    /// stellar aberration. None: none.
+    observer_velocity: Option<[f64; 3]>,
 }
 
 /// The stars of a scene.
@@ -48,6 +51,8 @@ pub struct StarField {
     pub mag_limit: f64,
     /// Julian year the stars are moved to by their proper motion.
     pub epoch_year: f64,
+    /// The camera's velocity over c (stellar aberration), if given.
+    pub beta: Option<DVec3>,
 }
 
 impl StarField {
@@ -107,8 +112,39 @@ impl StarField {
             name,
             mag_limit,
             epoch_year,
+            beta: file.observer_velocity.map(velocity_over_c).transpose()?,
         })
     }
+}
+
+/// Fastest observer accepted [m/s] (1000× a spacecraft's speed).
+pub const MAX_OBSERVER_SPEED: f64 = 1e7;
+/// Speed of light [m/s].
+const LIGHT_SPEED: f64 = 299_792_458.0;
+
+/// `stars.observer_velocity` as β = v/c, range-checked.
+fn velocity_over_c(v: [f64; 3]) -> Result<DVec3> {
+    let v = DVec3::from_array(v);
+    if !(v.is_finite() && v.length() <= MAX_OBSERVER_SPEED) {
+        return Err(Error::invalid(
+            "stars.observer_velocity",
+            format!("need a finite velocity of at most {MAX_OBSERVER_SPEED:e} m/s, got {v}"),
+        ));
+    }
+    Ok(v / LIGHT_SPEED)
+}
+
+/// The apparent direction of a star in direction `n` to an observer moving
+/// at `beta` (special-relativistic aberration):
+/// n' = (n + γβ + (γ − 1)(n·β̂)β̂) / (γ (1 + n·β)).
+pub fn aberrate(n: DVec3, beta: DVec3) -> DVec3 {
+    let b2 = beta.length_squared();
+    if b2 == 0.0 {
+        return n;
+    }
+    let gamma = 1.0 / (1.0 - b2).sqrt();
+    let along = n.dot(beta) / b2;
+    ((n + gamma * beta + (gamma - 1.0) * along * beta) / (gamma * (1.0 + n.dot(beta)))).normalize()
 }
 
 fn resolve(base: &Path, path: &str) -> PathBuf {
@@ -146,6 +182,8 @@ pub struct StarSummary {
     pub occulted: usize,
     /// Σ electron rate of the drawn stars [e⁻/s] (before the frame's edge).
     pub electron_rate: f64,
+    /// Wall-clock time of the stars' stage [ms].
+    pub stars_ms: f64,
 }
 
 /// The stars' electron-rate image [e⁻/s per pixel] and its summary.
@@ -179,7 +217,10 @@ pub fn project(field: &StarField, scene: &Scene, margin: f64) -> Vec<ProjectedSt
         .filter(|star| star.v_mag <= field.mag_limit)
         .filter_map(|star| {
             let world = star.direction_after(years);
-            let c = to_camera * world;
+            // Aberration moves the body's image as much: it decides where
+            // a star lands, not whether the body hides it.
+            let apparent = field.beta.map_or(world, |b| aberrate(world, b));
+            let c = to_camera * apparent;
             if c.z <= 0.0 {
                 return None;
             }
@@ -216,6 +257,7 @@ pub fn project(field: &StarField, scene: &Scene, margin: f64) -> Vec<ProjectedSt
 /// (each star integrated over the pixels at its own sub-pixel position;
 /// without a PSF all its light falls in the pixel holding it).
 pub fn render(field: &StarField, scene: &Scene) -> Result<StarImage> {
+    let start = std::time::Instant::now();
     let pin = &scene.camera.pinhole;
     let psf = scene.camera.psf.as_ref();
     let margin = match psf {
@@ -259,6 +301,7 @@ pub fn render(field: &StarField, scene: &Scene) -> Result<StarImage> {
         in_field: stars.len(),
         occulted: stars.len() - drawn.len(),
         electron_rate: drawn.iter().map(|s| s.electron_rate).sum(),
+        stars_ms: start.elapsed().as_secs_f64() * 1e3,
     };
     Ok(StarImage {
         electron_rate: image,
