@@ -52,7 +52,7 @@ mod tests {
 
     #[test]
     fn sun_like_colour_gives_a_sun_like_temperature() {
-        // Ballesteros' formula gives 5835 K... for the Sun's B−V = 0.65
+        // Ballesteros' formula gives 5778 K for the Sun's B−V = 0.65
         // (4600 (1/2.298 + 1/1.218)), and Vega's ~0 gives ~10 100 K.
         let sun = temperature_from_b_v(0.65);
         assert!((sun - 4600.0 * (1.0 / 2.298 + 1.0 / 1.218)).abs() < 1e-9);
