@@ -30,11 +30,12 @@ pub enum Target {
     SimFacilityToml,
     CalibrateToml,
     DatasetSpec,
+    StarCatalogue,
 }
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 17] = [
+    pub const ALL: [Target; 18] = [
         Target::FacilityToml,
         Target::SceneToml,
         Target::Trajectory,
@@ -52,6 +53,7 @@ impl Target {
         Target::SimFacilityToml,
         Target::CalibrateToml,
         Target::DatasetSpec,
+        Target::StarCatalogue,
     ];
 
     /// Short name for reports.
@@ -74,6 +76,7 @@ impl Target {
             Target::SimFacilityToml => "simfacility_toml",
             Target::CalibrateToml => "calibrate_toml",
             Target::DatasetSpec => "dataset_spec",
+            Target::StarCatalogue => "star_catalogue_csv",
         }
     }
 
@@ -120,6 +123,10 @@ impl Target {
             Target::SimFacilityToml => vec![s(include_bytes!("../configs/simfacility.toml"))],
             Target::CalibrateToml => vec![s(include_bytes!("../configs/facility_calibrate.toml"))],
             Target::DatasetSpec => vec![s(DATASET_SEED.as_bytes())],
+            Target::StarCatalogue => vec![head(
+                include_bytes!("../data/stars/hipparcos_v7.5.csv"),
+                20,
+            )],
         }
     }
 
@@ -173,6 +180,7 @@ impl Target {
                     && crate::dataset::Spec::from_toml(&text, &scratch.join("spec.toml"), None)
                         .is_ok_and(|s| s.item(s.count - 1).index + 1 == s.count)
             }
+            Target::StarCatalogue => crate::stars::catalogue::parse(name, bytes).is_ok(),
         }
     }
 }

@@ -54,6 +54,7 @@ pub mod render_settings;
 pub mod scene;
 pub mod sensor;
 pub mod simfacility;
+pub mod stars;
 pub mod utc;
 pub mod validate;
 

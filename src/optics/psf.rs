@@ -206,6 +206,42 @@ impl Kernel {
     }
 }
 
+/// A point source's pixels: `weights` (row-major, side `2 half + 1`,
+/// summing to 1) for the block centred on pixel (`i0`, `j0`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stamp {
+    pub i0: isize,
+    pub j0: isize,
+    pub half: usize,
+    pub weights: Vec<f64>,
+}
+
+/// The PSF of a point source at continuous pixel position (`u`, `v`)
+/// integrated over each pixel of the block around the pixel holding it,
+/// cut and renormalised as a [`Kernel`] is (so a star's sub-pixel
+/// position survives, which a kernel centred on a pixel would lose).
+pub fn point_stamp(psf: &Psf, u: f64, v: f64) -> Result<Stamp> {
+    psf.validate("camera.psf")?;
+    let half = half_width(psf)?;
+    let (i0, j0) = (u.floor() as isize, v.floor() as isize);
+    let n = 2 * half + 1;
+    let mut weights: Vec<f64> = (0..n * n)
+        .map(|k| {
+            let i = i0 + (k % n) as isize - half as isize;
+            let j = j0 + (k / n) as isize - half as isize;
+            pixel_integral(psf, i as f64 + 0.5 - u, j as f64 + 0.5 - v)
+        })
+        .collect();
+    let sum: f64 = weights.iter().sum();
+    weights.iter_mut().for_each(|w| *w /= sum);
+    Ok(Stamp {
+        i0,
+        j0,
+        half,
+        weights,
+    })
+}
+
 /// Kernels up to this side are applied directly.
 const DIRECT_MAX_SIDE: usize = 15;
 

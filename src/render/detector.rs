@@ -96,6 +96,9 @@ pub struct Summary {
     /// applied and why ([`super::relief::decide_for_frame`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub relief_shadows: Option<super::relief::ShadowDecision>,
+    /// With `[stars]`: the catalogue, epoch and the stars drawn.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stars: Option<crate::stars::StarSummary>,
 }
 
 /// What the sensor chain did (`summary.json`, `sensor`).
@@ -191,7 +194,12 @@ pub fn render_scene(
     } else {
         0.0
     };
-    let mut d = detect(scene, pixels, &spectral, to_effective);
+    let stars = match &scene.stars {
+        Some(field) => Some(crate::stars::render(field, scene)?),
+        None => None,
+    };
+    let star_rate = stars.as_ref().map(|s| s.electron_rate.as_slice());
+    let mut d = detect(scene, pixels, &spectral, to_effective, star_rate);
     let sensor = cam.sensor.map(|params| apply_sensor(scene, params, &mut d));
     let effective_all_caps = spectral.all_caps_electrons * to_effective;
     let range = (scene.state.camera_position - scene.state.body_position).length();
@@ -228,6 +236,7 @@ pub fn render_scene(
             lime: lime_comparison(scene, spectral.all_caps, effective_all_caps),
             plan: None,
             relief_shadows: spectral.stats.shadows,
+            stars: stars.map(|s| s.summary),
         },
     };
     images.check_finite()?;
@@ -321,12 +330,14 @@ struct Detected {
 }
 
 /// Electrons (with the pupil's projected area: cos⁴ with the exact Ω),
-/// saturation and quantisation, and the camera-effective radiance.
+/// plus the stars' electron rate if any, saturation and quantisation, and
+/// the camera-effective radiance (of the body alone).
 fn detect(
     scene: &Scene,
     pixels: &PixelGeometry,
     spectral: &Spectral,
     to_effective: f64,
+    stars: Option<&[f32]>,
 ) -> Detected {
     let cam = &scene.camera;
     let pin = &cam.pinhole;
@@ -344,7 +355,8 @@ fn detect(
     for j in 0..pin.height {
         for i in 0..pin.width {
             let k = j * pin.width + i;
-            if spectral.radiance[k] == 0.0 {
+            let star_rate = stars.map_or(0.0, |s| s[k] as f64);
+            if spectral.radiance[k] == 0.0 && star_rate == 0.0 {
                 continue;
             }
             let dir = pin.pixel_direction(i, j);
@@ -356,7 +368,7 @@ fn detect(
             d.radiance_effective[k] = effective as f32;
             d.effective_irradiance += effective * omega * cos_los;
             d.weighted += rate * cos_los;
-            let e_rate = pupil * dir.z * rate;
+            let e_rate = pupil * dir.z * rate + star_rate;
             d.electron_rate[k] = e_rate as f32;
             let mut e = cam.exposure * e_rate;
             // Not `min`: a NaN must stay NaN for `check_finite` to see it.

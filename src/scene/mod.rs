@@ -251,6 +251,8 @@ pub struct Scene {
     pub state: State,
     /// Sampling settings.
     pub render: RenderSettings,
+    /// The stars behind the body (`[stars]`); None: a black sky.
+    pub stars: Option<crate::stars::StarField>,
 }
 
 // ---------------------------------------------------------------- TOML file
@@ -265,6 +267,7 @@ struct SceneFile {
     ephemeris: Option<EphemerisFile>,
     #[serde(default)]
     render: RenderSettings,
+    stars: Option<crate::stars::StarsFile>,
 }
 
 /// `[camera]` table of a scene file.
@@ -420,6 +423,7 @@ struct SceneFileBodyRef {
     ephemeris: Option<EphemerisFile>,
     #[serde(default)]
     render: RenderSettings,
+    stars: Option<crate::stars::StarsFile>,
 }
 
 #[derive(Deserialize)]
@@ -709,6 +713,7 @@ impl Scene {
             state: file.state,
             ephemeris: file.ephemeris,
             render: file.render,
+            stars: file.stars,
         };
         Self::build(scene, base, body_base).map_err(|e| match e {
             Error::Invalid { ref field, .. } if field.starts_with("body") => {
@@ -752,12 +757,18 @@ impl Scene {
                 map.prepare_filters();
             }
         }
+        let stars = file
+            .stars
+            .as_ref()
+            .map(|f| crate::stars::StarField::from_file(f, base, s.epoch.as_deref()))
+            .transpose()?;
         Ok(Scene {
             camera,
             sun,
             body,
             state,
             render: file.render,
+            stars,
         })
     }
 }

@@ -499,6 +499,7 @@ pub fn build_scene(
         body,
         state,
         render,
+        stars: None,
     })
 }
 
