@@ -290,6 +290,18 @@ impl Frame<'_> {
         ((self.min_caps * (cell.t1 - cell.t0)).ceil(), min_s)
     }
 
+    /// How far [px] the displacement can move a point on the image: the
+    /// largest height over the nearest distance from the camera to the
+    /// surface (0 without a displacement).
+    fn relief_margin_px(&self) -> f64 {
+        let h = self.body.relief.height_bound;
+        if h <= 0.0 {
+            return 0.0;
+        }
+        let nearest = (self.lune.camera_range - self.radius - h).max(1e-3 * self.radius);
+        h * self.camera.fx.max(self.camera.fy) / nearest
+    }
+
     /// Visit a cell: drop it, cut it, or store it as a leaf. Returns the
     /// pixel bounds the leaf may touch.
     pub fn visit(&self, cell: Cell, stack: &mut Vec<Cell>, leaves: &mut Vec<Leaf>) -> Option<Rect> {
@@ -337,7 +349,7 @@ impl Frame<'_> {
             x1 = x1.max(p.0);
             y1 = y1.max(p.1);
         }
-        let margin = 0.3 * (x1 - x0).max(y1 - y0) + 2.0;
+        let margin = 0.3 * (x1 - x0).max(y1 - y0) + 2.0 + self.relief_margin_px();
         let (w, h) = (self.camera.width as f64, self.camera.height as f64);
         if x1 + margin < 0.0 || y1 + margin < 0.0 || x0 - margin > w || y0 - margin > h {
             return None;
@@ -396,8 +408,17 @@ impl Frame<'_> {
         let [xc, yc, zc] = self.axes_cam;
         let base = zc * (ct * self.radius) - self.camera_cam;
         let (xs, ys) = (xc * (st * self.radius), yc * (st * self.radius));
+        let height = self.body.relief.height.as_ref().map(|h| &h.0);
+        let [xb, yb, zb] = self.axes_body;
         for _ in 0..=n {
-            let p = base + xs * cp + ys * sp;
+            let mut p = base + xs * cp + ys * sp;
+            if let Some(h) = height {
+                // The corner on the displaced surface: the limb moves with
+                // the relief (`scene::surface`).
+                let n_body = xb * (st * cp) + yb * (st * sp) + zb * ct;
+                let r = crate::scene::surface::displaced_radius(h, self.radius, n_body);
+                p = (p + self.camera_cam) * (r / self.radius) - self.camera_cam;
+            }
             out.pos.push(if p.z > 0.0 {
                 self.camera.project(p)
             } else {
@@ -653,20 +674,15 @@ impl Frame<'_> {
         albedo: f64,
     ) -> f64 {
         let relief = &self.body.relief;
-        let (lat, lon) = lat_lon(n_body);
-        let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);
-        let north = n_body.cross(east);
-        let mut r = radius;
-        let mut geometric = n_body;
-        if let Some((height, d_lat, d_lon)) = &relief.height {
-            r = radius + height.sample(lat, lon);
-            let cos_lat = lat.cos().max(1e-6);
-            let g_north = d_lat.sample(lat, lon) / r;
-            let g_east = d_lon.sample(lat, lon) / (r * cos_lat);
-            geometric = (n_body - north * g_north - east * g_east).normalize();
-        }
+        let (r, geometric) = match &relief.height {
+            Some(h) => crate::scene::surface::displaced(h, radius, n_body),
+            None => (radius, n_body),
+        };
         let shading = match &relief.normals {
             Some(map) => {
+                let (lat, lon) = lat_lon(n_body);
+                let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);
+                let north = n_body.cross(east);
                 let t = map.sample(lat, lon);
                 (east * t.x + north * t.y + geometric * t.z).normalize()
             }
