@@ -109,14 +109,15 @@ fn a_ridge_on_the_limb_moves_the_silhouette_by_its_projected_height() {
     };
     let plain = scene_of(&setup);
     setup.extra_body = format!(
-        "shadows = {{ dem = \"{}\", scale = 1.0, mode = \"never\", displace = true, cache_dir = \"{}\" }}",
+        "shadows = {{ dem = \"{}\", scale = 1.0, mode = \"always\", displace = true, cache_dir = \"{}\" }}",
         dem.display(),
         dir.path().display()
     );
     let raised = scene_of(&setup);
 
     // The Sun's side of the image: the camera's x axis (look_at) against
-    // the Sun's direction.
+    // the Sun's direction. The Sun stands pole-ward of the ridge there, so
+    // its shadow falls on the hidden side.
     let z = -cam.normalize();
     let x_cam = z.cross(DVec3::Z).normalize();
     let sign = if x_cam.dot(setup.sun_position()) > 0.0 {
@@ -128,7 +129,11 @@ fn a_ridge_on_the_limb_moves_the_silhouette_by_its_projected_height() {
     let row = pin.cy.floor() as usize;
     // The central pixel is wholly inside the flat polar cap.
     let measure = |scene: &optistim::scene::Scene| {
-        let img = render(scene).radiance;
+        let images = render(scene);
+        if let Some(d) = images.summary.relief_shadows {
+            assert!(d.displaced && d.limb_px > 3.0, "{d:?}");
+        }
+        let img = images.radiance;
         let full = img[row * pin.width + pin.cx.floor() as usize] as f64;
         assert!(full > 0.0);
         edge_px(&img, pin.width, row, pin.cx, sign, full)

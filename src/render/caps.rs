@@ -196,6 +196,9 @@ pub struct Frame<'a> {
     pub map_tolerance: f64,
     /// The relief's cast shadows, when this frame applies them.
     pub shadows: Option<super::relief::FrameShadows<'a>>,
+    /// The displacement (height [m] and its slopes) this frame applies: the
+    /// body's, unless the frame skips its relief (`render::relief`).
+    pub height: Option<&'a (EquirectMap, EquirectMap, EquirectMap)>,
 }
 
 /// Radius of the solar photosphere [m].
@@ -293,9 +296,9 @@ impl Frame<'_> {
     /// How far [px] the displacement can move a point on the image: the
     /// largest height over the nearest distance from the camera to the
     /// surface (0 without a displacement).
-    fn relief_margin_px(&self) -> f64 {
+    pub(super) fn relief_margin_px(&self) -> f64 {
         let h = self.body.relief.height_bound;
-        if h <= 0.0 {
+        if self.height.is_none() || h <= 0.0 {
             return 0.0;
         }
         let nearest = (self.lune.camera_range - self.radius - h).max(1e-3 * self.radius);
@@ -408,7 +411,7 @@ impl Frame<'_> {
         let [xc, yc, zc] = self.axes_cam;
         let base = zc * (ct * self.radius) - self.camera_cam;
         let (xs, ys) = (xc * (st * self.radius), yc * (st * self.radius));
-        let height = self.body.relief.height.as_ref().map(|h| &h.0);
+        let height = self.height.map(|h| &h.0);
         let [xb, yb, zb] = self.axes_body;
         for _ in 0..=n {
             let mut p = base + xs * cp + ys * sp;
@@ -447,7 +450,7 @@ impl Frame<'_> {
         let model = self.model;
         let needs_body_dir = self.body.albedo_map.is_some()
             || !self.body.parameter_maps.is_empty()
-            || self.body.relief.height.is_some()
+            || self.height.is_some()
             || self.body.relief.normals.is_some()
             || self.shadows.is_some();
         let mut total = 0.0;
@@ -596,8 +599,7 @@ impl Frame<'_> {
         r: f64,
         model: &Reflectance,
     ) -> f64 {
-        let relief = &self.body.relief;
-        if relief.height.is_none() && relief.normals.is_none() {
+        if self.height.is_none() && self.body.relief.normals.is_none() {
             let (mu0, mu, cos_g, sun_sq, cam_sq) = if self.distant {
                 (mu0_far, mu_far, cos_a, d_sun * d_sun, d_cam * d_cam)
             } else {
@@ -673,12 +675,11 @@ impl Frame<'_> {
         model: &Reflectance,
         albedo: f64,
     ) -> f64 {
-        let relief = &self.body.relief;
-        let (r, geometric) = match &relief.height {
+        let (r, geometric) = match self.height {
             Some(h) => crate::scene::surface::displaced(h, radius, n_body),
             None => (radius, n_body),
         };
-        let shading = match &relief.normals {
+        let shading = match &self.body.relief.normals {
             Some(map) => {
                 let (lat, lon) = lat_lon(n_body);
                 let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);

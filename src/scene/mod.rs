@@ -430,6 +430,9 @@ struct SceneFileBodyRef {
 #[serde(deny_unknown_fields)]
 struct BodyRef {
     file: PathBuf,
+    /// Relief for this scene over the body file's (paths against the
+    /// scene's directory).
+    shadows: Option<ShadowsSpec>,
 }
 
 /// A body file: its `[body]` table (relative paths in it resolve against
@@ -763,10 +766,25 @@ impl Scene {
         let body: BodyFileOnly = toml::from_str(&body_text)
             .map_err(|e| Error::parse(&body_path, toml_message(&body_text, &e)))?;
         let body_base = body_path.parent().unwrap_or(Path::new("."));
+        let mut body = body.body;
+        if let Some(mut spec) = file.body.shadows {
+            if body.shadows.is_some() {
+                return Err(Error::parse(
+                    path,
+                    format!("`body.shadows`: {} has its own", body_path.display()),
+                ));
+            }
+            // The scene's relief: its paths are the scene's.
+            let absolute =
+                |p: &Path| std::path::absolute(resolve(base, p)).map_err(|e| Error::io(p, e));
+            spec.dem = absolute(&spec.dem)?;
+            spec.cache_dir = spec.cache_dir.as_deref().map(absolute).transpose()?;
+            body.shadows = Some(spec);
+        }
         let scene = SceneFile {
             camera: file.camera,
             sun: file.sun,
-            body: body.body,
+            body,
             state: file.state,
             ephemeris: file.ephemeris,
             render: file.render,
