@@ -550,7 +550,7 @@ pub fn validate_amie(
     out: &Path,
     data: &Path,
     kernels: Option<&Path>,
-    relief: &str,
+    (relief, psf_sigma): (&str, Option<f64>),
     overwrite: bool,
 ) -> Result<()> {
     use optistim::scene::{horizon::ShadowMode, ShadowsSpec};
@@ -569,6 +569,7 @@ pub fn validate_amie(
         "full" => Some(ShadowsSpec::km_dem(dem, ShadowMode::Always, true)),
         other => anyhow::bail!("--relief must be `none`, `shadows` or `full`, not `{other}`"),
     };
+    options.psf_sigma_px = psf_sigma;
     let run = compare::run(img, model, &options)
         .with_context(|| format!("validating {} with {model}", img.display()))?;
     compare::write_outputs(&run, out).with_context(|| format!("writing {}", out.display()))?;

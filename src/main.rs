@@ -158,6 +158,10 @@ enum ValidateCommand {
         /// shadows, and the same DEM moves the limb and tilts the normals).
         #[arg(long, default_value = "none")]
         relief: String,
+        /// A Gaussian PSF of this standard deviation [px] on the render
+        /// (AMIE publishes none; default: no PSF).
+        #[arg(long)]
+        psf_sigma: Option<f64>,
         /// Replace an earlier validation in `--out`.
         #[arg(long)]
         overwrite: bool,
@@ -241,6 +245,7 @@ fn main() -> ExitCode {
             data,
             kernels,
             relief,
+            psf_sigma,
             overwrite,
         }) => cli::validate_amie(
             &img,
@@ -248,7 +253,7 @@ fn main() -> ExitCode {
             &out,
             &data,
             kernels.as_deref(),
-            &relief,
+            (&relief, psf_sigma),
             overwrite,
         ),
     };

@@ -102,6 +102,9 @@ pub struct ValidationOptions {
     /// Relief from a DEM (`[body] shadows`, applied in every frame):
     /// cast shadows, and with `displace` the limb and the normals too.
     pub relief: Option<ShadowsSpec>,
+    /// A Gaussian PSF of this standard deviation [px] on the render (AMIE
+    /// publishes none; `None`: no PSF).
+    pub psf_sigma_px: Option<f64>,
 }
 
 impl ValidationOptions {
@@ -118,6 +121,7 @@ impl ValidationOptions {
             caps_per_pixel: None,
             kernels: None,
             relief: None,
+            psf_sigma_px: None,
         }
     }
 }
@@ -451,7 +455,9 @@ pub fn build_scene(
         quantum_efficiency: Response::Table(response),
         transmission: Response::Constant(1.0),
         sensor: None,
-        psf: None,
+        psf: options
+            .psf_sigma_px
+            .map(|sigma_px| crate::scene::camera::Psf::Gaussian { sigma_px }),
         sensor_frame: 0,
     };
     let sun = SolarSpectrum::from_csv(&options.solar_spectrum, Some(1361.0))?;
@@ -503,6 +509,9 @@ pub fn build_scene(
             radius: e.occulter_radius_m,
         }),
     };
+    if let Some(psf) = &camera.psf {
+        psf.validate("validate.psf_sigma_px")?;
+    }
     let render = RenderSettings {
         caps_per_pixel: options.caps_per_pixel,
         ..RenderSettings::default()
