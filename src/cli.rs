@@ -551,8 +551,10 @@ pub fn validate_amie(
     out: &Path,
     data: &Path,
     kernels: Option<&Path>,
+    (relief, psf_sigma): (&str, Option<f64>),
     overwrite: bool,
 ) -> Result<()> {
+    use optistim::scene::{horizon::ShadowMode, ShadowsSpec};
     use optistim::validate::compare;
     let files: Vec<_> = VALIDATE_FILES.iter().map(|f| out.join(f)).collect();
     optistim::outfile::check_no_earlier(&files, overwrite)?;
@@ -561,6 +563,14 @@ pub fn validate_amie(
         print_ephemeris_difference(img, dir)?;
         options.kernels = Some(dir.to_path_buf());
     }
+    let dem = data.join("maps/ldem_4.tif");
+    options.relief = match relief {
+        "none" => None,
+        "shadows" => Some(ShadowsSpec::km_dem(dem, ShadowMode::Always, false)),
+        "full" => Some(ShadowsSpec::km_dem(dem, ShadowMode::Always, true)),
+        other => anyhow::bail!("--relief must be `none`, `shadows` or `full`, not `{other}`"),
+    };
+    options.psf_sigma_px = psf_sigma;
     let run = compare::run(img, model, &options)
         .with_context(|| format!("validating {} with {model}", img.display()))?;
     compare::write_outputs(&run, out).with_context(|| format!("writing {}", out.display()))?;

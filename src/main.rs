@@ -153,6 +153,15 @@ enum ValidateCommand {
         /// ephemerides; also prints how far the two differ.
         #[arg(long)]
         kernels: Option<PathBuf>,
+        /// Relief from the bundled LOLA DEM (DATA/maps/ldem_4.tif), in
+        /// every frame: `none`, `shadows` (cast shadows) or `full` (cast
+        /// shadows, and the same DEM moves the limb and tilts the normals).
+        #[arg(long, default_value = "none")]
+        relief: String,
+        /// A Gaussian PSF of this standard deviation [px] on the render
+        /// (AMIE publishes none; default: no PSF).
+        #[arg(long)]
+        psf_sigma: Option<f64>,
         /// Replace an earlier validation in `--out`.
         #[arg(long)]
         overwrite: bool,
@@ -235,8 +244,18 @@ fn main() -> ExitCode {
             out,
             data,
             kernels,
+            relief,
+            psf_sigma,
             overwrite,
-        }) => cli::validate_amie(&img, &model, &out, &data, kernels.as_deref(), overwrite),
+        }) => cli::validate_amie(
+            &img,
+            &model,
+            &out,
+            &data,
+            kernels.as_deref(),
+            (&relief, psf_sigma),
+            overwrite,
+        ),
     };
     finish(result.map(|()| ExitCode::SUCCESS))
 }

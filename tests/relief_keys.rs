@@ -105,6 +105,21 @@ fn each_bad_dem_or_key_is_one_line_naming_it() {
             "azimuths",
             None,
         ),
+        // One DEM for limb, shading and shadows: no second height map.
+        (
+            format!(
+                "{}\ndisplacement_map = {{ path = \"{}\", scale = 1.0 }}",
+                key(&good, &cache, "1.0", "16", "\"auto\""),
+                good.display()
+            ),
+            "body.displacement_map",
+            None,
+        ),
+        (
+            key(&good, &cache, "1.0", "16", "\"auto\"").replace(" }", ", displace = 1 }"),
+            "displace",
+            None,
+        ),
     ];
     for (text, needle, file) in cases {
         let e = match scene_with(&text) {
@@ -152,4 +167,45 @@ proptest! {
             }
         }
     }
+}
+
+/// A scene naming a body file may add `shadows` (paths against the
+/// scene's directory); a body file with its own is refused in one line
+/// naming the key and the body file.
+#[test]
+fn a_scene_adds_shadows_to_a_body_file_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem = dir.path().join("dem.tiff");
+    write_f32_tiff(&dem, 16, 8, &[1.0f32; 128]).unwrap();
+    let shadows = format!(
+        "shadows = {{ dem = \"dem.tiff\", scale = 1.0, cache_dir = \"{}\" }}",
+        dir.path().join("cache").display()
+    );
+    let body = |extra: &str| {
+        format!("[body]\nradius = 1000.0\nreflectance = {{ model = \"lambert\", albedo = 0.3 }}\n{extra}\n")
+    };
+    let scene_text = Setup::new("{ model = \"lambert\", albedo = 0.3 }", 30.0, 100.0, 60.0)
+        .toml()
+        .replace(
+            "[body]\nradius = 1e3\nreflectance = { model = \"lambert\", albedo = 0.3 }\n",
+            &format!("[body]\nfile = \"body.toml\"\n{shadows}\n"),
+        );
+    assert!(scene_text.contains("file = \"body.toml\""), "{scene_text}");
+    let scene_path = dir.path().join("scene.toml");
+    std::fs::write(dir.path().join("body.toml"), body("")).unwrap();
+    let scene = Scene::from_toml(&scene_text, &scene_path).unwrap();
+    assert!(scene.body.relief.shadows.is_some());
+    std::fs::write(
+        dir.path().join("body.toml"),
+        body(&shadows.replace("dem.tiff", &dem.display().to_string())),
+    )
+    .unwrap();
+    let e = format!(
+        "{:#}",
+        Scene::from_toml(&scene_text, &scene_path).unwrap_err()
+    );
+    assert!(
+        !e.contains('\n') && e.contains("body.shadows") && e.contains("body.toml"),
+        "{e}"
+    );
 }

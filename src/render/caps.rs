@@ -196,6 +196,9 @@ pub struct Frame<'a> {
     pub map_tolerance: f64,
     /// The relief's cast shadows, when this frame applies them.
     pub shadows: Option<super::relief::FrameShadows<'a>>,
+    /// The displacement (height [m] and its slopes) this frame applies: the
+    /// body's, unless the frame skips its relief (`render::relief`).
+    pub height: Option<&'a (EquirectMap, EquirectMap, EquirectMap)>,
 }
 
 /// Radius of the solar photosphere [m].
@@ -290,6 +293,18 @@ impl Frame<'_> {
         ((self.min_caps * (cell.t1 - cell.t0)).ceil(), min_s)
     }
 
+    /// How far [px] the displacement can move a point on the image: the
+    /// largest height over the nearest distance from the camera to the
+    /// surface (0 without a displacement).
+    pub(super) fn relief_margin_px(&self) -> f64 {
+        let h = self.body.relief.height_bound;
+        if self.height.is_none() || h <= 0.0 {
+            return 0.0;
+        }
+        let nearest = (self.lune.camera_range - self.radius - h).max(1e-3 * self.radius);
+        h * self.camera.fx.max(self.camera.fy) / nearest
+    }
+
     /// Visit a cell: drop it, cut it, or store it as a leaf. Returns the
     /// pixel bounds the leaf may touch.
     pub fn visit(&self, cell: Cell, stack: &mut Vec<Cell>, leaves: &mut Vec<Leaf>) -> Option<Rect> {
@@ -337,7 +352,7 @@ impl Frame<'_> {
             x1 = x1.max(p.0);
             y1 = y1.max(p.1);
         }
-        let margin = 0.3 * (x1 - x0).max(y1 - y0) + 2.0;
+        let margin = 0.3 * (x1 - x0).max(y1 - y0) + 2.0 + self.relief_margin_px();
         let (w, h) = (self.camera.width as f64, self.camera.height as f64);
         if x1 + margin < 0.0 || y1 + margin < 0.0 || x0 - margin > w || y0 - margin > h {
             return None;
@@ -396,8 +411,17 @@ impl Frame<'_> {
         let [xc, yc, zc] = self.axes_cam;
         let base = zc * (ct * self.radius) - self.camera_cam;
         let (xs, ys) = (xc * (st * self.radius), yc * (st * self.radius));
+        let height = self.height.map(|h| &h.0);
+        let [xb, yb, zb] = self.axes_body;
         for _ in 0..=n {
-            let p = base + xs * cp + ys * sp;
+            let mut p = base + xs * cp + ys * sp;
+            if let Some(h) = height {
+                // The corner on the displaced surface: the limb moves with
+                // the relief (`scene::surface`).
+                let n_body = xb * (st * cp) + yb * (st * sp) + zb * ct;
+                let r = crate::scene::surface::displaced_radius(h, self.radius, n_body);
+                p = (p + self.camera_cam) * (r / self.radius) - self.camera_cam;
+            }
             out.pos.push(if p.z > 0.0 {
                 self.camera.project(p)
             } else {
@@ -426,7 +450,7 @@ impl Frame<'_> {
         let model = self.model;
         let needs_body_dir = self.body.albedo_map.is_some()
             || !self.body.parameter_maps.is_empty()
-            || self.body.relief.height.is_some()
+            || self.height.is_some()
             || self.body.relief.normals.is_some()
             || self.shadows.is_some();
         let mut total = 0.0;
@@ -575,8 +599,7 @@ impl Frame<'_> {
         r: f64,
         model: &Reflectance,
     ) -> f64 {
-        let relief = &self.body.relief;
-        if relief.height.is_none() && relief.normals.is_none() {
+        if self.height.is_none() && self.body.relief.normals.is_none() {
             let (mu0, mu, cos_g, sun_sq, cam_sq) = if self.distant {
                 (mu0_far, mu_far, cos_a, d_sun * d_sun, d_cam * d_cam)
             } else {
@@ -652,21 +675,15 @@ impl Frame<'_> {
         model: &Reflectance,
         albedo: f64,
     ) -> f64 {
-        let relief = &self.body.relief;
-        let (lat, lon) = lat_lon(n_body);
-        let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);
-        let north = n_body.cross(east);
-        let mut r = radius;
-        let mut geometric = n_body;
-        if let Some((height, d_lat, d_lon)) = &relief.height {
-            r = radius + height.sample(lat, lon);
-            let cos_lat = lat.cos().max(1e-6);
-            let g_north = d_lat.sample(lat, lon) / r;
-            let g_east = d_lon.sample(lat, lon) / (r * cos_lat);
-            geometric = (n_body - north * g_north - east * g_east).normalize();
-        }
-        let shading = match &relief.normals {
+        let (r, geometric) = match self.height {
+            Some(h) => crate::scene::surface::displaced(h, radius, n_body),
+            None => (radius, n_body),
+        };
+        let shading = match &self.body.relief.normals {
             Some(map) => {
+                let (lat, lon) = lat_lon(n_body);
+                let east = DVec3::new(-lon.sin(), lon.cos(), 0.0);
+                let north = n_body.cross(east);
                 let t = map.sample(lat, lon);
                 (east * t.x + north * t.y + geometric * t.z).normalize()
             }

@@ -543,7 +543,7 @@ impl PixelRays {
     /// sphere's), the camera inside the sphere, or a body too small.
     /// `tolerance`: see [`super::RenderSettings::pixel_tolerance`].
     pub fn new(frame: &Frame, tolerance: f64) -> Option<PixelRays> {
-        if frame.distant || frame.body.relief.height.is_some() {
+        if frame.distant || frame.height.is_some() {
             return None;
         }
         let centre = -frame.camera_cam;

@@ -197,14 +197,17 @@ impl Renderer {
             map_tolerance: settings.map_tolerance,
             occulter: occulter_near(state, &lune, body.radius),
             shadows: None,
+            height: body.relief.height.as_ref(),
         };
         let mut frame = frame;
         if let Some(s) = &body.relief.shadows {
-            let decision = relief::decide_for_frame(s, &frame);
+            let mut decision = relief::decide_for_frame(s, &frame);
             if decision.applied {
                 let sun_radius = (caps::SUN_RADIUS / lune.sun_range).min(1.0).asin();
                 frame.shadows = Some(relief::FrameShadows::new(&s.map, sun_radius));
             }
+            // The DEM's displacement (`shadows.displace`) goes with it.
+            relief::decide_displacement(s, &mut frame, &mut decision);
             stats.shadows = Some(decision);
         }
 

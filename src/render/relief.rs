@@ -87,6 +87,11 @@ pub struct ShadowDecision {
     pub pixel_footprint_m: f64,
     /// The DEM's cell [m].
     pub dem_cell_m: f64,
+    /// Whether the frame moved the limb and tilted the normals with the
+    /// DEM (`shadows.displace`; see [`decide_displacement`]).
+    pub displaced: bool,
+    /// How far [px] the DEM's highest point can move the limb on the image.
+    pub limb_px: f64,
 }
 
 /// Length on the image [px] that a shadow must reach to be applied in
@@ -142,6 +147,30 @@ pub fn decide_for_frame(shadows: &ReliefShadows, frame: &Frame) -> ShadowDecisio
         ShadowMode::Auto => (false, "auto: below a pixel"),
     };
     d
+}
+
+/// Whether `frame` keeps the body's displacement from the shadows' DEM
+/// (`shadows.displace`): with the shadows, or where the DEM's highest
+/// point moves the limb by [`AUTO_MIN_PIXELS`] or more (a far full Moon's
+/// limb mountains can show where no shadow does); never with `mode =
+/// never`. Records the outcome in `decision`.
+pub fn decide_displacement(
+    shadows: &ReliefShadows,
+    frame: &mut Frame,
+    decision: &mut ShadowDecision,
+) {
+    if frame.height.is_none() {
+        return;
+    }
+    decision.limb_px = frame.relief_margin_px();
+    decision.displaced = match shadows.mode {
+        ShadowMode::Never => false,
+        ShadowMode::Always => true,
+        ShadowMode::Auto => decision.applied || decision.limb_px >= AUTO_MIN_PIXELS,
+    };
+    if !decision.displaced {
+        frame.height = None;
+    }
 }
 
 #[cfg(test)]

@@ -1,8 +1,9 @@
 //! Horizon maps: cast shadows of relief. For every cell of an
 //! equirectangular DEM on a sphere, the elevation angle of the local
 //! horizon in N azimuths, found by marching outward along great circles
-//! over the bilinear DEM with the sphere's curvature. Computed once (over
-//! rayon's workers) and cached on disk, keyed by the DEM file's SHA-256
+//! over the bilinear DEM with the sphere's curvature (each row's great
+//! circles traced once and shared by its cells, the sphere being symmetric
+//! about its axis). Computed once (over rayon's workers) and cached on disk, keyed by the DEM file's SHA-256
 //! and the parameters; a cache that fails any check is rebuilt. A lookup
 //! is bilinear in space and linear in azimuth; [`disk_fraction_above`]
 //! turns the horizon into the lit share of the solar disk (penumbra).
@@ -32,7 +33,7 @@ pub const MAX_ABS_HEIGHT: f64 = 25_000.0;
 /// Largest horizon map, in stored values (cells × azimuths): 1 GiB of f32.
 pub const MAX_HORIZON_VALUES: u64 = 1 << 28;
 /// Version of the marching algorithm, part of the cache key.
-const ALGORITHM_VERSION: u32 = 1;
+const ALGORITHM_VERSION: u32 = 2;
 const MAGIC: &[u8; 8] = b"OPTSHZN1";
 
 /// Horizon elevation angles [rad, ≥ 0] per DEM cell and azimuth.
@@ -204,6 +205,7 @@ impl HorizonMap {
         data.par_chunks_mut(w * azimuths)
             .enumerate()
             .for_each(|(row, out)| {
+                let path = RowPath::new(dem, row, &directions, &trig);
                 for (col, cell) in out.chunks_mut(azimuths).enumerate() {
                     let march = March {
                         dem,
@@ -211,7 +213,7 @@ impl HorizonMap {
                         r_max: radius + tops.at(col, row),
                         trig: &trig,
                     };
-                    march.cell(col, row, &directions, cell);
+                    march.cell(col, row, &path, cell);
                 }
             });
         HorizonMap::from_data(w, h, azimuths, data)
@@ -395,40 +397,68 @@ struct March<'a> {
 }
 
 impl March<'_> {
-    fn cell(&self, col: usize, row: usize, directions: &[(f64, f64)], out: &mut [f32]) {
+    fn cell(&self, col: usize, row: usize, path: &RowPath, out: &mut [f32]) {
         let dem = self.dem;
         let r0 = self.radius + dem.data[row * dem.width + col] as f64;
         if r0 >= self.r_max {
             out.fill(0.0);
             return;
         }
-        let (lat, lon) = dem.lat_lon_of(col as f64, row as f64);
-        let (up, east, north) = local_frame(lat, lon);
-        for (o, &(c, s)) in out.iter_mut().zip(directions) {
-            let dir = east * c + north * s;
-            *o = self.along(r0, up, dir).atan() as f32;
+        let n = self.trig.len();
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = self
+                .along(r0, col as f64, &path.texels[k * n..(k + 1) * n])
+                .atan() as f32;
         }
     }
 
-    /// Largest tan(elevation) (≥ 0) along `dir` from height r0 at `up`.
+    /// Largest tan(elevation) (≥ 0) from height r0 at column `col` along
+    /// the steps `texels` of one azimuth ([`RowPath`]).
     #[inline]
-    fn along(&self, r0: f64, up: DVec3, dir: DVec3) -> f64 {
+    fn along(&self, r0: f64, col: f64, texels: &[(f64, f64)]) -> f64 {
         let mut best = 0.0f64;
-        for &(cg, sg) in self.trig {
+        for (&(cg, sg), &(dx, y)) in self.trig.iter().zip(texels) {
             // No point higher than r_max can beat `best` from here on
             // (the bound decreases with γ).
             let bound = (self.r_max * cg - r0) / (self.r_max * sg);
             if bound <= best {
                 break;
             }
-            let p = up * cg + dir * sg;
-            let lat = p.z.clamp(-1.0, 1.0).asin();
-            let lon = p.y.atan2(p.x);
-            let r1 = self.radius + self.dem.sample(lat, lon);
+            let r1 = self.radius + self.dem.sample_texel(col + dx, y);
             let t = (r1 * cg - r0) / (r1 * sg);
             best = best.max(t);
         }
         best
+    }
+}
+
+/// Where the marches of one DEM row read the DEM: per azimuth and step,
+/// the texel row and the column offset from the marching cell. The sphere
+/// is symmetric about its axis, so every cell of a row marches the same
+/// path shifted in longitude: its great circles are traced once per row
+/// (an `asin` and an `atan2` per step), not once per cell.
+struct RowPath {
+    /// `[k · steps + s]`: (Δcolumn, row) in continuous texels.
+    texels: Vec<(f64, f64)>,
+}
+
+impl RowPath {
+    fn new(dem: &EquirectMap, row: usize, directions: &[(f64, f64)], trig: &[(f64, f64)]) -> Self {
+        let (w, h) = (dem.width as f64, dem.height as f64);
+        // The row's cell at longitude 0; cell col sits col columns east.
+        let (lat, _) = dem.lat_lon_of(0.0, row as f64);
+        let (up, east, north) = local_frame(lat, 0.0);
+        let mut texels = Vec::with_capacity(directions.len() * trig.len());
+        for &(c, s) in directions {
+            let dir = east * c + north * s;
+            for &(cg, sg) in trig {
+                let p = up * cg + dir * sg;
+                let lat = p.z.clamp(-1.0, 1.0).asin();
+                let lon = p.y.atan2(p.x);
+                texels.push((lon / TAU * w, (FRAC_PI_2 - lat) / PI * h - 0.5));
+            }
+        }
+        RowPath { texels }
     }
 }
 
@@ -670,8 +700,9 @@ mod tests {
         };
         let mut cell = [0.0f32; 8];
         for row in 0..h {
+            let path = RowPath::new(&dem, row, &dirs, &trig);
             for col in 0..w {
-                march.cell(col, row, &dirs, &mut cell);
+                march.cell(col, row, &path, &mut cell);
                 for (k, v) in cell.iter().enumerate() {
                     assert_eq!(*v as f64, fast.cell(col, row, k), "({col}, {row}, {k})");
                 }

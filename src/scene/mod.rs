@@ -8,6 +8,7 @@
 pub mod camera;
 pub mod horizon;
 pub mod maps;
+pub mod surface;
 
 use std::path::{Path, PathBuf};
 
@@ -87,8 +88,11 @@ impl Camera {
 #[derive(Clone, Debug, Default)]
 pub struct Relief {
     /// Height above the reference sphere [m], and its derivatives with
-    /// respect to latitude and longitude [m/rad].
+    /// respect to latitude and longitude [m/rad] (see [`surface`]).
     pub height: Option<(EquirectMap, EquirectMap, EquirectMap)>,
+    /// Largest |height| [m] of `height` (0 without): how far the
+    /// displacement can move the limb.
+    pub height_bound: f64,
     /// Tangent-space shading normals.
     pub normals: Option<NormalMap>,
     /// Shadows cast by the relief of a DEM (`[body] shadows`).
@@ -352,7 +356,7 @@ struct BodyFile {
     albedo_spectrum: Option<Vec<[f64; 2]>>,
     displacement_map: Option<DisplacementMapFile>,
     normal_map: Option<NormalMapFile>,
-    shadows: Option<ShadowsFile>,
+    shadows: Option<ShadowsSpec>,
     parameter_maps: Option<Vec<ParameterMapFile>>,
     #[serde(default)]
     lime_reference: bool,
@@ -430,6 +434,9 @@ struct SceneFileBodyRef {
 #[serde(deny_unknown_fields)]
 struct BodyRef {
     file: PathBuf,
+    /// Relief for this scene over the body file's (paths against the
+    /// scene's directory).
+    shadows: Option<ShadowsSpec>,
 }
 
 /// A body file: its `[body]` table (relative paths in it resolve against
@@ -459,25 +466,81 @@ struct NormalMapFile {
     path: PathBuf,
 }
 
-/// `[body] shadows`: the DEM whose relief casts shadows.
-#[derive(Deserialize)]
+/// `[body] shadows`: the DEM whose relief casts shadows and, with
+/// `displace`, also moves the limb and tilts the shading normals (one DEM,
+/// one bilinear interpolation for all three; docs/SCENE.md).
+#[derive(Deserialize, serde::Serialize, Clone, Debug)]
 #[serde(deny_unknown_fields)]
-struct ShadowsFile {
-    dem: PathBuf,
-    scale: f64,
+pub struct ShadowsSpec {
+    /// Equirectangular DEM (relative paths against the scene's directory).
+    pub dem: PathBuf,
+    /// Factor from DEM values to metres.
+    pub scale: f64,
+    /// Azimuths of the horizon map.
     #[serde(default = "default_azimuths")]
-    azimuths: i64,
-    cache_dir: Option<PathBuf>,
+    pub azimuths: i64,
+    /// Where the horizon map is cached (default: [`horizon::default_cache_dir`]).
+    pub cache_dir: Option<PathBuf>,
+    /// When a frame applies the shadows.
     #[serde(default)]
-    mode: horizon::ShadowMode,
+    pub mode: horizon::ShadowMode,
+    /// The DEM is also the displacement map: its heights move the limb and
+    /// its slopes tilt the normals.
+    #[serde(default)]
+    pub displace: bool,
+}
+
+impl ShadowsSpec {
+    /// The documented settings for `dem` (scale 1000: heights in km, as
+    /// `data/maps/ldem_4.tif`), default azimuths and cache.
+    pub fn km_dem(dem: impl Into<PathBuf>, mode: horizon::ShadowMode, displace: bool) -> Self {
+        ShadowsSpec {
+            dem: dem.into(),
+            scale: 1000.0,
+            azimuths: default_azimuths(),
+            cache_dir: None,
+            mode,
+            displace,
+        }
+    }
+}
+
+impl Relief {
+    /// The relief `[body] shadows` builds: the horizon map of `spec`'s DEM
+    /// (paths against `base`) and, with `displace`, the same DEM as the
+    /// displacement. Errors name `body.shadows.<key>`.
+    pub fn from_dem(spec: &ShadowsSpec, base: &Path, radius: f64) -> Result<Relief> {
+        let (shadows, dem) = relief_shadows(spec, base, radius)?;
+        let mut relief = Relief {
+            shadows: Some(std::sync::Arc::new(shadows)),
+            ..Relief::default()
+        };
+        if spec.displace {
+            relief.set_height(dem);
+        }
+        Ok(relief)
+    }
+
+    /// Sets the displacement to `height` [m] (its slopes and bound with it).
+    pub fn set_height(&mut self, height: EquirectMap) {
+        let (lo, hi) = height.range();
+        self.height_bound = (lo.abs().max(hi.abs())) as f64;
+        let (d_lat, d_lon) = height.gradients();
+        self.height = Some((height, d_lat, d_lon));
+    }
 }
 
 fn default_azimuths() -> i64 {
     horizon::DEFAULT_AZIMUTHS as i64
 }
 
-/// The horizon map of `[body] shadows`, from its cache or computed.
-fn relief_shadows(s: &ShadowsFile, base: &Path, radius: f64) -> Result<horizon::ReliefShadows> {
+/// The horizon map of `[body] shadows`, from its cache or computed, and
+/// the DEM [m] it was computed from.
+fn relief_shadows(
+    s: &ShadowsSpec,
+    base: &Path,
+    radius: f64,
+) -> Result<(horizon::ReliefShadows, EquirectMap)> {
     let key = "body.shadows";
     if !(s.scale.is_finite() && s.scale > 0.0) {
         return Err(Error::invalid(
@@ -511,7 +574,7 @@ fn relief_shadows(s: &ShadowsFile, base: &Path, radius: f64) -> Result<horizon::
         horizon::HorizonMap::load_or_compute(&path, &dem, &params, &cache_dir)
             .map_err(|e| Error::invalid(format!("{key}.dem"), e.to_string()))?;
     let (h_min, h_max) = dem.range();
-    Ok(horizon::ReliefShadows {
+    let shadows = horizon::ReliefShadows {
         map,
         mode: s.mode,
         cell: radius * std::f64::consts::PI / dem.height as f64,
@@ -519,7 +582,8 @@ fn relief_shadows(s: &ShadowsFile, base: &Path, radius: f64) -> Result<horizon::
         cache,
         cache_file,
         seconds: start.elapsed().as_secs_f64(),
-    })
+    };
+    Ok((shadows, dem))
 }
 
 #[derive(Deserialize)]
@@ -706,10 +770,25 @@ impl Scene {
         let body: BodyFileOnly = toml::from_str(&body_text)
             .map_err(|e| Error::parse(&body_path, toml_message(&body_text, &e)))?;
         let body_base = body_path.parent().unwrap_or(Path::new("."));
+        let mut body = body.body;
+        if let Some(mut spec) = file.body.shadows {
+            if body.shadows.is_some() {
+                return Err(Error::parse(
+                    path,
+                    format!("`body.shadows`: {} has its own", body_path.display()),
+                ));
+            }
+            // The scene's relief: its paths are the scene's.
+            let absolute =
+                |p: &Path| std::path::absolute(resolve(base, p)).map_err(|e| Error::io(p, e));
+            spec.dem = absolute(&spec.dem)?;
+            spec.cache_dir = spec.cache_dir.as_deref().map(absolute).transpose()?;
+            body.shadows = Some(spec);
+        }
         let scene = SceneFile {
             camera: file.camera,
             sun: file.sun,
-            body: body.body,
+            body,
             state: file.state,
             ephemeris: file.ephemeris,
             render: file.render,
@@ -813,18 +892,24 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
         )?),
         None => None,
     };
-    let mut relief = Relief::default();
+    let mut relief = match &body.shadows {
+        Some(s) => Relief::from_dem(s, body_base, radius)?,
+        None => Relief::default(),
+    };
     if let Some(d) = &body.displacement_map {
+        if body.shadows.is_some() {
+            // Limb, shading and shadows from one DEM (docs/SCENE.md).
+            return Err(Error::invalid(
+                "body.displacement_map",
+                "a body with `shadows` takes its displacement from the shadows' DEM: remove `displacement_map` and set `shadows.displace = true`",
+            ));
+        }
         if !d.scale.is_finite() {
             return Err(Error::invalid("body.displacement_map.scale", "not finite"));
         }
         let mut height = load_map(body_base, &d.path, "body.displacement_map.path")?;
         height.scale(d.scale);
-        let (d_lat, d_lon) = height.gradients();
-        relief.height = Some((height, d_lat, d_lon));
-    }
-    if let Some(s) = &body.shadows {
-        relief.shadows = Some(std::sync::Arc::new(relief_shadows(s, body_base, radius)?));
+        relief.set_height(height);
     }
     if let Some(n) = &body.normal_map {
         let p = resolve(body_base, &n.path);

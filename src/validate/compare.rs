@@ -43,7 +43,9 @@ use crate::radiometry::reflectance::ReflectanceConfig;
 use crate::radiometry::spectrum::{Response, SolarSpectrum, Table};
 use crate::render::detector::{render_scene, PixelGeometry, Summary};
 use crate::render::{RenderSettings, Renderer};
-use crate::scene::{Body, Camera, EquirectMap, Occulter, Pinhole, Relief, Scene, State};
+use crate::scene::{
+    Body, Camera, EquirectMap, Occulter, Pinhole, Relief, Scene, ShadowsSpec, State,
+};
 
 /// Lower and upper wavelength of the assumed AMIE response [m].
 pub const BAND_M: [f64; 2] = [400e-9, 1000e-9];
@@ -97,6 +99,12 @@ pub struct ValidationOptions {
     /// Directory of SPICE kernels (`tools/fetch_kernels.sh`): Sun and Moon
     /// attitude from them instead of the analytic ephemerides.
     pub kernels: Option<PathBuf>,
+    /// Relief from a DEM (`[body] shadows`, applied in every frame):
+    /// cast shadows, and with `displace` the limb and the normals too.
+    pub relief: Option<ShadowsSpec>,
+    /// A Gaussian PSF of this standard deviation [px] on the render (AMIE
+    /// publishes none; `None`: no PSF).
+    pub psf_sigma_px: Option<f64>,
 }
 
 impl ValidationOptions {
@@ -112,6 +120,8 @@ impl ValidationOptions {
             earth_shadow: true,
             caps_per_pixel: None,
             kernels: None,
+            relief: None,
+            psf_sigma_px: None,
         }
     }
 }
@@ -445,7 +455,9 @@ pub fn build_scene(
         quantum_efficiency: Response::Table(response),
         transmission: Response::Constant(1.0),
         sensor: None,
-        psf: None,
+        psf: options
+            .psf_sigma_px
+            .map(|sigma_px| crate::scene::camera::Psf::Gaussian { sigma_px }),
         sensor_frame: 0,
     };
     let sun = SolarSpectrum::from_csv(&options.solar_spectrum, Some(1361.0))?;
@@ -475,6 +487,15 @@ pub fn build_scene(
             lime_reference: false,
         }
     };
+    let mut body = body;
+    if let Some(spec) = &options.relief {
+        let relief = Relief::from_dem(spec, Path::new("."), body.radius)?;
+        body.relief.shadows = relief.shadows;
+        if relief.height.is_some() {
+            body.relief.height = relief.height;
+            body.relief.height_bound = relief.height_bound;
+        }
+    }
     let s = &obs.scene;
     let q = |v: [f64; 4]| DQuat::from_xyzw(v[1], v[2], v[3], v[0]).normalize();
     let state = State {
@@ -488,6 +509,9 @@ pub fn build_scene(
             radius: e.occulter_radius_m,
         }),
     };
+    if let Some(psf) = &camera.psf {
+        psf.validate("validate.psf_sigma_px")?;
+    }
     let render = RenderSettings {
         caps_per_pixel: options.caps_per_pixel,
         ..RenderSettings::default()

@@ -1,0 +1,240 @@
+//! The DEM moves the limb and tilts the normals (`[body] shadows` with
+//! `displace = true`): a ridge on the limb against the silhouette of the
+//! same DEM computed here, and the renderer's normals against finite
+//! differences of the DEM's bilinear surface written here.
+
+mod common;
+use common::*;
+
+use glam::{DQuat, DVec3};
+use optistim::scene::surface::displaced;
+use optistim::scene::EquirectMap;
+
+/// DEM rows (latitude) and columns of the ring ridge.
+const ROWS: usize = 720;
+const COLS: usize = 8;
+
+/// Ridge height profile of latitude: a Gaussian ring of height `h` [m]
+/// and width `sigma` [rad] around latitude `crest` [rad].
+fn ridge(lat: f64, h: f64, crest: f64, sigma: f64) -> f64 {
+    h * (-0.5 * ((lat - crest) / sigma).powi(2)).exp()
+}
+
+/// Latitude [rad] of DEM row centre j.
+fn row_lat(j: usize) -> f64 {
+    std::f64::consts::FRAC_PI_2 - (j as f64 + 0.5) * std::f64::consts::PI / ROWS as f64
+}
+
+/// The DEM's height at latitude `lat`: linear between row centres, held
+/// beyond the first and last (what a bilinear read of a DEM constant in
+/// longitude gives).
+fn dem_height(rows: &[f64], lat: f64) -> f64 {
+    let y = (std::f64::consts::FRAC_PI_2 - lat) / std::f64::consts::PI * ROWS as f64 - 0.5;
+    let y = y.clamp(0.0, (ROWS - 1) as f64);
+    let j = (y.floor() as usize).min(ROWS - 2);
+    let t = y - j as f64;
+    rows[j] * (1.0 - t) + rows[j + 1] * t
+}
+
+/// Angle [rad] off the line of sight of the silhouette of the body of
+/// radius `radius` raised by `rows`, seen from distance `d` over its north
+/// pole: the largest atan(ρ / (d − z)) over a fine latitude grid, and the
+/// latitude where it is reached.
+fn silhouette(rows: &[f64], radius: f64, d: f64) -> (f64, f64) {
+    let (mut best, mut at) = (0.0f64, 0.0);
+    for k in 0..=200_000 {
+        let lat = (k as f64 / 200_000.0) * 0.6;
+        let r = radius + dem_height(rows, lat);
+        let a = (r * lat.cos()).atan2(d - r * lat.sin());
+        if a > best {
+            (best, at) = (a, lat);
+        }
+    }
+    (best, at)
+}
+
+/// Distance [px] from the principal point to the end of the lit disk along
+/// the central row, toward `sign` (±1): pixels past the outermost one at
+/// least 98 % of `full` count their share of `full` (an area-law body is
+/// uniformly bright, so a pixel's radiance is its covered share).
+fn edge_px(radiance: &[f32], width: usize, row: usize, cx: f64, sign: i64, full: f64) -> f64 {
+    let col = |k: i64| (cx.floor() as i64 + sign * k) as usize;
+    let share = |k: i64| (radiance[row * width + col(k)] as f64 / full).min(1.0);
+    let last = (0..(width as i64 / 2 - 1))
+        .filter(|&k| share(k) >= 0.98)
+        .max()
+        .unwrap();
+    let partial: f64 = (last + 1..(width as i64 / 2 - 1)).map(share).sum();
+    // The central pixel's far edge is |cx − floor cx ± ...| from cx.
+    let far_edge_of_last = if sign > 0 {
+        (cx.floor() + last as f64 + 1.0) - cx
+    } else {
+        cx - (cx.floor() - last as f64)
+    };
+    far_edge_of_last + partial
+}
+
+/// A ring ridge 40 m high (σ = 3°, 12 DEM rows)
+/// whose crest is the sphere's limb, on a 1000 m body seen from 4 radii
+/// over its pole, 200 px across: the lit limb ends where the DEM's
+/// silhouette says, within 0.05 px; without the DEM it ends at the
+/// sphere's.
+#[test]
+fn a_ridge_on_the_limb_moves_the_silhouette_by_its_projected_height() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut setup = Setup::new("{ model = \"area\", albedo = 0.3 }", 30.0, 4.0, 200.0);
+    let (radius, d) = (setup.radius, setup.range);
+    let limb_lat = (radius / d).asin();
+    let (h, sigma) = (40.0, 3f64.to_radians());
+    let rows: Vec<f64> = (0..ROWS)
+        .map(|j| ridge(row_lat(j), h, limb_lat, sigma))
+        .collect();
+    let data: Vec<f32> = rows
+        .iter()
+        .flat_map(|&v| std::iter::repeat_n(v as f32, COLS))
+        .collect();
+    let dem = dir.path().join("ridge.tiff");
+    optistim::render::output::write_f32_tiff(&dem, COLS, ROWS, &data).unwrap();
+
+    // The body's north pole toward the camera.
+    let cam = setup.camera_position();
+    let q = DQuat::from_rotation_arc(DVec3::Z, cam.normalize());
+    let body_attitude = format!(
+        "[state]\nbody_attitude = [{:e}, {:e}, {:e}, {:e}]",
+        q.w, q.x, q.y, q.z
+    );
+    let scene_of = |setup: &Setup| {
+        let toml = setup.toml().replacen("[state]", &body_attitude, 1);
+        optistim::scene::Scene::from_toml(&toml, std::path::Path::new("t.toml")).unwrap()
+    };
+    let plain = scene_of(&setup);
+    setup.extra_body = format!(
+        "shadows = {{ dem = \"{}\", scale = 1.0, mode = \"always\", displace = true, cache_dir = \"{}\" }}",
+        dem.display(),
+        dir.path().display()
+    );
+    let raised = scene_of(&setup);
+
+    // The Sun's side of the image: the camera's x axis (look_at) against
+    // the Sun's direction. The Sun stands pole-ward of the ridge there, so
+    // its shadow falls on the hidden side.
+    let z = -cam.normalize();
+    let x_cam = z.cross(DVec3::Z).normalize();
+    let sign = if x_cam.dot(setup.sun_position()) > 0.0 {
+        1
+    } else {
+        -1
+    };
+    let pin = &plain.camera.pinhole;
+    let row = pin.cy.floor() as usize;
+    // The central pixel is wholly inside the flat polar cap.
+    let measure = |scene: &optistim::scene::Scene| {
+        let images = render(scene);
+        if let Some(d) = images.summary.relief_shadows {
+            assert!(d.displaced && d.limb_px > 3.0, "{d:?}");
+        }
+        let img = images.radiance;
+        let full = img[row * pin.width + pin.cx.floor() as usize] as f64;
+        assert!(full > 0.0);
+        edge_px(&img, pin.width, row, pin.cx, sign, full)
+    };
+
+    let (sphere_angle, _) = silhouette(&vec![0.0; ROWS], radius, d);
+    assert!((sphere_angle - (radius / d).asin()).abs() < 1e-9);
+    let sphere_px = pin.fx * sphere_angle.tan();
+    let (ridge_angle, at) = silhouette(&rows, radius, d);
+    let ridge_px = pin.fx * ridge_angle.tan();
+    // The silhouette point is on the near side (the renderer's caps cover
+    // the sphere's visible hemisphere) and the ridge moves it by pixels.
+    assert!(at >= limb_lat, "{at} < {limb_lat}");
+    assert!(ridge_px - sphere_px > 3.0, "{ridge_px} vs {sphere_px}");
+
+    let got_plain = measure(&plain);
+    let got_raised = measure(&raised);
+    eprintln!("limb: sphere {got_plain} px (geometry {sphere_px}), ridge {got_raised} px (geometry {ridge_px})");
+    assert!(
+        (got_plain - sphere_px).abs() < 0.05,
+        "sphere: limb at {got_plain} px, geometry {sphere_px}"
+    );
+    assert!(
+        (got_raised - ridge_px).abs() < 0.05,
+        "ridge: limb at {got_raised} px, geometry {ridge_px} (sphere {sphere_px})"
+    );
+}
+
+/// The geometric normal the renderer shades with (`scene::surface`) is the
+/// normal of the DEM's bilinear surface p = n (R + h): at points all over
+/// the sphere it matches the cross product of central differences of p
+/// over ±1 DEM cell (the bilinear DEM written here) to 1e-6 rad, and the
+/// smooth field's analytic normal to the discretisation's order.
+#[test]
+fn normals_from_the_dem_match_finite_differences_of_its_surface() {
+    use std::f64::consts::{FRAC_PI_2, PI, TAU};
+    let (w, h, radius) = (256usize, 128usize, 5.0e4);
+    let field =
+        |lat: f64, lon: f64| 900.0 * (3.0 * lon).sin() * (2.0 * lat).cos() + 400.0 * lat.sin();
+    let mut data = vec![0.0f32; w * h];
+    for j in 0..h {
+        for i in 0..w {
+            let lat = FRAC_PI_2 - (j as f64 + 0.5) * PI / h as f64;
+            let lon = (i as f64 + 0.5) * TAU / w as f64 - PI;
+            data[j * w + i] = field(lat, lon) as f32;
+        }
+    }
+    // The test's own bilinear read (wrap in longitude, clamp in latitude).
+    let bilinear = |lat: f64, lon: f64| {
+        let x = (lon + PI) / TAU * w as f64 - 0.5;
+        let y = ((FRAC_PI_2 - lat) / PI * h as f64 - 0.5).clamp(0.0, (h - 1) as f64);
+        let (i0, j0) = (x.floor(), (y.floor() as usize).min(h - 2));
+        let (tx, ty) = (x - i0, y - j0 as f64);
+        let i0 = (i0 as i64).rem_euclid(w as i64) as usize;
+        let i1 = (i0 + 1) % w;
+        let v = |i: usize, j: usize| data[j * w + i] as f64;
+        let top = v(i0, j0) * (1.0 - tx) + v(i1, j0) * tx;
+        let bottom = v(i0, j0 + 1) * (1.0 - tx) + v(i1, j0 + 1) * tx;
+        top * (1.0 - ty) + bottom * ty
+    };
+    let unit =
+        |lat: f64, lon: f64| DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin());
+    let surface = |lat: f64, lon: f64, hgt: &dyn Fn(f64, f64) -> f64| {
+        unit(lat, lon) * (radius + hgt(lat, lon))
+    };
+    let height = EquirectMap::new(w, h, data.clone());
+    let (d_lat, d_lon) = height.gradients();
+    let maps = (height, d_lat, d_lon);
+    let (step_lat, step_lon) = (PI / h as f64, TAU / w as f64);
+    let mut worst_fd: f64 = 0.0;
+    let mut worst_exact: f64 = 0.0;
+    let mut tilt: f64 = 0.0;
+    for k in 0..2000 {
+        let t = k as f64;
+        // Away from the first and last rows (clamped there).
+        let lat = (t * 0.618_034).sin() * 1.3;
+        let lon = (t * 0.414_214).sin() * 3.1;
+        let (r, normal) = displaced(&maps, radius, unit(lat, lon));
+        assert!(
+            (r - radius - bilinear(lat, lon)).abs() < 1e-6,
+            "radius at {lat}, {lon}"
+        );
+        let fd = |hgt: &dyn Fn(f64, f64) -> f64, dl: f64, dn: f64| {
+            let e = surface(lat, lon + dn, hgt) - surface(lat, lon - dn, hgt);
+            let n = surface(lat + dl, lon, hgt) - surface(lat - dl, lon, hgt);
+            e.cross(n).normalize()
+        };
+        let from_dem = fd(&bilinear, step_lat, step_lon);
+        let exact = fd(&field, 1e-6, 1e-6);
+        worst_fd = worst_fd.max(normal.angle_between(from_dem));
+        worst_exact = worst_exact.max(normal.angle_between(exact));
+        tilt = tilt.max(normal.angle_between(unit(lat, lon)));
+    }
+    // The central differences over ±1 cell move the point by a cell on
+    // the sphere too: their normal differs by O(δ²) relative
+    // (the O(δ²) terms of the chords, δ = 0.025 rad, times slopes ≤ 0.06).
+    assert!(worst_fd < 2e-4, "against the DEM's surface: {worst_fd} rad");
+    assert!(
+        worst_exact < 1e-3,
+        "against the smooth field: {worst_exact} rad"
+    );
+    eprintln!("normal errors: DEM surface {worst_fd:e} rad, smooth field {worst_exact:e} rad, tilt {tilt}");
+    assert!(tilt > 0.02, "the relief tilts the normals ({tilt} rad)");
+}
