@@ -8,6 +8,7 @@
 pub mod camera;
 pub mod horizon;
 pub mod maps;
+pub mod tiles;
 
 use std::path::{Path, PathBuf};
 
@@ -91,8 +92,13 @@ pub struct Relief {
     pub height: Option<(EquirectMap, EquirectMap, EquirectMap)>,
     /// Tangent-space shading normals.
     pub normals: Option<NormalMap>,
-    /// Shadows cast by the relief of a DEM (`[body] shadows`).
+    /// Shadows cast by the relief of a DEM (`[body] shadows`), with the
+    /// horizon maps of its DEM tiles (`[[body.dem_tiles]]`) layered over.
     pub shadows: Option<std::sync::Arc<horizon::ReliefShadows>>,
+    /// Albedo tiles (`[[body.albedo_tiles]]`) over the albedo map (or the
+    /// model's albedo): kept here, with the relief, so that a `Body` built
+    /// elsewhere needs no new field.
+    pub albedo_tiles: Option<std::sync::Arc<tiles::TileSet>>,
 }
 
 impl Body {
@@ -350,6 +356,10 @@ struct BodyFile {
     displacement_map: Option<DisplacementMapFile>,
     normal_map: Option<NormalMapFile>,
     shadows: Option<ShadowsFile>,
+    dem_tiles: Option<Vec<tiles::DemTileFile>>,
+    albedo_tiles: Option<Vec<tiles::AlbedoTileFile>>,
+    /// Largest |height| [m] of a DEM tile (default 25 km).
+    max_abs_height: Option<f64>,
     parameter_maps: Option<Vec<ParameterMapFile>>,
     #[serde(default)]
     lime_reference: bool,
@@ -473,7 +483,13 @@ fn default_azimuths() -> i64 {
 }
 
 /// The horizon map of `[body] shadows`, from its cache or computed.
-fn relief_shadows(s: &ShadowsFile, base: &Path, radius: f64) -> Result<horizon::ReliefShadows> {
+fn relief_shadows(
+    s: &ShadowsFile,
+    dem_tiles: &[tiles::DemTileFile],
+    max_abs_height: f64,
+    base: &Path,
+    radius: f64,
+) -> Result<horizon::ReliefShadows> {
     let key = "body.shadows";
     if !(s.scale.is_finite() && s.scale > 0.0) {
         return Err(Error::invalid(
@@ -507,11 +523,25 @@ fn relief_shadows(s: &ShadowsFile, base: &Path, radius: f64) -> Result<horizon::
         horizon::HorizonMap::load_or_compute(&path, &dem, &params, &cache_dir)
             .map_err(|e| Error::invalid(format!("{key}.dem"), e.to_string()))?;
     let (h_min, h_max) = dem.range();
+    let mut cell = radius * std::f64::consts::PI / dem.height as f64;
+    let mut relief = (h_max - h_min) as f64;
+    let mut map = map;
+    if !dem_tiles.is_empty() {
+        let key = "body.dem_tiles";
+        let set = tiles::load_dem_tiles(dem_tiles, base, max_abs_height, key)?;
+        let (overlay, _) = tiles::tile_horizons(&set, &path, &dem, &params, &cache_dir, key)?;
+        for t in set.tiles() {
+            let (lo, hi) = t.map.range();
+            relief = relief.max((hi.max(h_max) - lo.min(h_min)) as f64);
+            cell = cell.min(radius * t.grid.cell_lat());
+        }
+        map = map.with_overlay(overlay);
+    }
     Ok(horizon::ReliefShadows {
         map,
         mode: s.mode,
-        cell: radius * std::f64::consts::PI / dem.height as f64,
-        relief: (h_max - h_min) as f64,
+        cell,
+        relief,
         cache,
         cache_file,
         seconds: start.elapsed().as_secs_f64(),
@@ -812,8 +842,32 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
         let (d_lat, d_lon) = height.gradients();
         relief.height = Some((height, d_lat, d_lon));
     }
-    if let Some(s) = &body.shadows {
-        relief.shadows = Some(std::sync::Arc::new(relief_shadows(s, body_base, radius)?));
+    let max_abs_height = match body.max_abs_height {
+        None => tiles::DEFAULT_MAX_ABS_HEIGHT,
+        Some(v) => within(
+            v,
+            tiles::MAX_ABS_HEIGHT_RANGE.0,
+            tiles::MAX_ABS_HEIGHT_RANGE.1,
+            "body.max_abs_height",
+        )?,
+    };
+    let dem_tiles = body.dem_tiles.as_deref().unwrap_or_default();
+    match &body.shadows {
+        Some(s) => {
+            let shadows = relief_shadows(s, dem_tiles, max_abs_height, body_base, radius)?;
+            relief.shadows = Some(std::sync::Arc::new(shadows));
+        }
+        None if !dem_tiles.is_empty() => {
+            return Err(Error::invalid(
+                "body.dem_tiles",
+                "DEM tiles are layered over the global DEM of `body.shadows`: give it",
+            ))
+        }
+        None => {}
+    }
+    if let Some(files) = body.albedo_tiles.as_deref().filter(|f| !f.is_empty()) {
+        let set = tiles::load_albedo_tiles(files, body_base, "body.albedo_tiles")?;
+        relief.albedo_tiles = Some(std::sync::Arc::new(set));
     }
     if let Some(n) = &body.normal_map {
         let p = resolve(body_base, &n.path);
