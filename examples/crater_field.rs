@@ -65,8 +65,7 @@ fn parse() -> Result<Args, String> {
         base_scale: 1.0,
     };
     let argv: Vec<String> = std::env::args().skip(1).collect();
-    let mut it = argv.chunks(2);
-    while let Some(pair) = it.next() {
+    for pair in argv.chunks(2) {
         let [k, v] = pair else {
             return Err(format!("{} needs a value", pair[0]));
         };
