@@ -8,6 +8,7 @@ use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use std::sync::Arc;
 
 use glam::DVec3;
+use optistim::render::relief::FrameShadows;
 use optistim::scene::horizon::HorizonMap;
 use optistim::scene::tiles::{Tile, TileGrid, TileHorizon, TileHorizons};
 use optistim::scene::EquirectMap;
@@ -204,6 +205,14 @@ fn a_tile_crater_casts_the_exact_shadow_and_the_global_map_rules_outside() {
         // The global map alone (15 km cells) sees no crater at all.
         let (lat, lon) = lat_lon(on_axis(0.5 * (exact + A)));
         assert_eq!(base.elevation(lat, lon, 0.0), 0.0);
+        // The renderer's per-sample factor (a point Sun) reads the tile:
+        // dark midway between the edge and the east rim, lit midway to the
+        // west rim.
+        let factor = FrameShadows::new(&map, 0.0);
+        let dark = on_axis(0.5 * (exact + A));
+        let lit = on_axis(0.5 * (exact - A));
+        assert_eq!(factor.factor(dark, sun), 0.0, "e {e_deg}°");
+        assert_eq!(factor.factor(lit, sun), 1.0, "e {e_deg}°");
     }
     // Outside the tile the global map's value, bit for bit, where the hill
     // stands above the horizon in the west; the lookup's bound holds inside.
@@ -299,4 +308,73 @@ fn a_tile_resampling_the_global_dem_changes_the_horizon_little() {
     );
     assert!(top > 0.05, "the hill casts horizons: {top}");
     assert!(tile_worst < bound, "tile {tile_worst} vs bound {bound}");
+}
+
+/// A tile's cached horizon map: computed once, then loaded with the same
+/// values; a cache with a flipped byte or cut short is rebuilt, never
+/// used; another tile file (a changed height) gets its own cache.
+#[test]
+fn a_corrupt_or_stale_tile_cache_is_rebuilt() {
+    use optistim::render::output::write_f32_tiff;
+    use optistim::scene::horizon::{CacheOutcome, HorizonParams};
+    use optistim::scene::tiles::{load_dem_tiles, DemTileFile};
+
+    let dir = tempfile::tempdir().unwrap();
+    let (gw, gh) = (64usize, 32usize);
+    let global_path = dir.path().join("global.tiff");
+    let gdata: Vec<f32> = (0..gw * gh)
+        .map(|k| ((k * 37) % 11) as f32 * 50.0)
+        .collect();
+    write_f32_tiff(&global_path, gw, gh, &gdata).unwrap();
+    let global = EquirectMap::load(&global_path).unwrap();
+    let tile_path = dir.path().join("tile.tiff");
+    let tdata: Vec<f32> = (0..24 * 24).map(|k| ((k * 13) % 7) as f32 * 40.0).collect();
+    write_f32_tiff(&tile_path, 24, 24, &tdata).unwrap();
+    let file = DemTileFile {
+        path: tile_path.clone(),
+        lat_min: 10.0,
+        lat_max: 14.0,
+        lon_min: 20.0,
+        lon_max: 24.0,
+        scale: 1.0,
+        blend: 3.0,
+    };
+    let params = HorizonParams {
+        radius: 1e5,
+        scale: 1.0,
+        azimuths: 8,
+    };
+    let cache = dir.path().join("cache");
+    let load = || {
+        let set = load_dem_tiles(std::slice::from_ref(&file), dir.path(), 25e3, "t").unwrap();
+        TileHorizon::load_or_compute(&set.tiles()[0], &global_path, &global, &params, &cache)
+            .unwrap()
+    };
+    let (first, o1) = load();
+    assert_eq!(o1, CacheOutcome::Computed);
+    assert!(first.map.max_elevation() > 0.0);
+    let (again, o2) = load();
+    assert_eq!(o2, CacheOutcome::Loaded);
+    assert_eq!(again.map.values(), first.map.values());
+    let cached = std::fs::read_dir(&cache)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.to_string_lossy().contains("horizon-tile-"))
+        .unwrap();
+    let mut bytes = std::fs::read(&cached).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x40;
+    std::fs::write(&cached, &bytes).unwrap();
+    let (rebuilt, o3) = load();
+    assert_eq!(o3, CacheOutcome::Rebuilt);
+    assert_eq!(rebuilt.map.values(), first.map.values());
+    std::fs::write(&cached, &bytes[..mid]).unwrap();
+    assert_eq!(load().1, CacheOutcome::Rebuilt);
+    // A changed tile is another key: computed afresh, not the old map.
+    let mut changed = tdata.clone();
+    changed[300] += 900.0;
+    write_f32_tiff(&tile_path, 24, 24, &changed).unwrap();
+    let (fresh, o4) = load();
+    assert_eq!(o4, CacheOutcome::Computed);
+    assert_ne!(fresh.map.values(), first.map.values());
 }
