@@ -452,7 +452,8 @@ impl Frame<'_> {
             || !self.body.parameter_maps.is_empty()
             || self.height.is_some()
             || self.body.relief.normals.is_some()
-            || self.shadows.is_some();
+            || self.shadows.is_some()
+            || self.body.relief.albedo_tiles.is_some();
         let mut total = 0.0;
         let [upper, lower] = rows;
         self.corner_row(self.theta(cell.t0), cell.s0, ds, leaf.n_s, lower);
@@ -536,6 +537,15 @@ impl Frame<'_> {
                         let e2 = (yb * cp - xb * sp) * (st * d_phi);
                         texture.sample(map, n_body, e1, e2, self) * self.map_scale
                     }
+                };
+                // Albedo tiles: their point value at the cap centre, blended
+                // over the map's (the cap is then spread uniformly).
+                let albedo = match self.body.relief.albedo_tiles.as_deref() {
+                    Some(t) if t.covers_dir(n_body) => {
+                        texture.k = 1;
+                        t.albedo_dir(n_body, self.map_scale, albedo)
+                    }
+                    _ => albedo,
                 };
                 let integrand = self.integrand(
                     n_local, n_body, albedo, mu0_far, mu_far, cos_a, cam_local, d_cam, d_sun, r,

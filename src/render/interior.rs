@@ -699,6 +699,7 @@ impl PixelRays {
     fn lattice_applies(&self, frame: &Frame) -> bool {
         frame.occulter.is_none()
             && frame.body.parameter_maps.is_empty()
+            && frame.body.relief.albedo_tiles.is_none()
             && (frame.body.albedo_map.is_none() || frame.model.is_albedo_quadratic())
     }
 
@@ -790,6 +791,14 @@ impl PixelRays {
                 );
                 (mean * frame.map_scale, exact.then_some(map))
             }
+        };
+        // Albedo tiles: their value at the pixel centre, blended over the
+        // map's mean, for the whole pixel.
+        let (albedo, exact) = match frame.body.relief.albedo_tiles.as_deref() {
+            Some(t) if t.covers_dir(s.n_body) => {
+                (t.albedo_dir(s.n_body, frame.map_scale, albedo), None)
+            }
+            _ => (albedo, exact),
         };
         let midpoint = self.flux_at(frame, &s, albedo);
         if self.midpoint_suffices(&s) {

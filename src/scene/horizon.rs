@@ -52,6 +52,22 @@ pub struct HorizonMap {
     /// it east and south (those a bilinear lookup there reads), over all
     /// azimuths, rounded up.
     block_max: Vec<f32>,
+    /// Finer horizon maps layered over this one (DEM tiles), consulted
+    /// first by [`Self::elevation`].
+    overlay: Option<std::sync::Arc<dyn HorizonOverlay>>,
+}
+
+/// Finer horizon maps over parts of a global one (`scene::tiles`): the
+/// lookup asks the overlay first, which blends its own value over the
+/// global one where it covers the point.
+pub trait HorizonOverlay: Send + Sync {
+    /// Horizon elevation [rad] at latitude/longitude [rad] toward
+    /// `azimuth`, `global` giving the global map's value there (called
+    /// only where the overlay does not cover the point wholly).
+    fn compose(&self, lat: f64, lon: f64, azimuth: f64, global: &dyn Fn() -> f64) -> f64;
+    /// Latitude/longitude boxes [rad] `[lat_min, lat_max, lon_min,
+    /// lon_max]` the overlay covers, each with its largest elevation [rad].
+    fn regions(&self) -> Vec<([f64; 4], f64)>;
 }
 
 impl std::fmt::Debug for HorizonMap {
@@ -134,7 +150,44 @@ impl HorizonMap {
         self.max
     }
 
-    fn from_data(width: usize, height: usize, azimuths: usize, data: Vec<f32>) -> HorizonMap {
+    /// All stored values, `[(row · width + col) · azimuths + k]`.
+    pub fn values(&self) -> &[f32] {
+        &self.data
+    }
+
+    /// This map with `overlay` layered over it: the lookup asks the
+    /// overlay first, and the bounds ([`Self::max_elevation`],
+    /// [`Self::sin_elevation_bound`]) rise to cover its values.
+    pub fn with_overlay(mut self, overlay: std::sync::Arc<dyn HorizonOverlay>) -> HorizonMap {
+        let (w, h) = (self.width, self.height);
+        for ([lat0, lat1, lon0, lon1], top) in overlay.regions() {
+            self.max = self.max.max(top);
+            let bound = (top.sin() + 1e-6) as f32;
+            // Every block whose lookup can land in the box, one cell of
+            // margin on each side.
+            let y = |lat: f64| (FRAC_PI_2 - lat) / PI * h as f64 - 0.5;
+            let x = |lon: f64| (lon + PI) / TAU * w as f64 - 0.5;
+            let (r0, r1) = (y(lat1).floor() - 1.0, y(lat0).ceil() + 1.0);
+            let (c0, c1) = (x(lon0).floor() as i64 - 1, x(lon1).ceil() as i64 + 1);
+            let rows = (r0.max(0.0) as usize)..=(r1.min((h - 1) as f64) as usize);
+            for row in rows {
+                for c in c0..=c1 {
+                    let col = c.rem_euclid(w as i64) as usize;
+                    let b = &mut self.block_max[row * w + col];
+                    *b = b.max(bound);
+                }
+            }
+        }
+        self.overlay = Some(overlay);
+        self
+    }
+
+    pub(crate) fn from_data(
+        width: usize,
+        height: usize,
+        azimuths: usize,
+        data: Vec<f32>,
+    ) -> HorizonMap {
         let max = data.iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
         let cell_max: Vec<f32> = data
             .chunks(azimuths)
@@ -159,6 +212,7 @@ impl HorizonMap {
             data,
             max,
             block_max,
+            overlay: None,
         }
     }
 
@@ -223,8 +277,19 @@ impl HorizonMap {
     /// `azimuth` [rad, counter-clockwise from east]: bilinear between the
     /// four nearest cell centres (wrapping in longitude, clamped in
     /// latitude), linear between the two nearest azimuths.
+    /// Where an overlay (DEM tiles) covers the point, its value is blended
+    /// over this one ([`HorizonOverlay::compose`]).
     #[inline]
     pub fn elevation(&self, lat: f64, lon: f64, azimuth: f64) -> f64 {
+        match &self.overlay {
+            None => self.own_elevation(lat, lon, azimuth),
+            Some(o) => o.compose(lat, lon, azimuth, &|| self.own_elevation(lat, lon, azimuth)),
+        }
+    }
+
+    /// [`Self::elevation`] of this map alone, without the overlay.
+    #[inline]
+    pub fn own_elevation(&self, lat: f64, lon: f64, azimuth: f64) -> f64 {
         let (w, h, n) = (self.width, self.height, self.azimuths);
         let x = (lon + PI) / TAU * w as f64 - 0.5;
         let y = ((FRAC_PI_2 - lat) / PI * h as f64 - 0.5).clamp(0.0, (h - 1) as f64);
@@ -565,7 +630,7 @@ fn cache_key(dem_hash: &[u8], dem: &EquirectMap, p: &HorizonParams) -> [u8; 32] 
 
 /// The map in `file` if its magic, key, size, checksum and every value
 /// check out; None otherwise (the caller rebuilds).
-fn read_cache(
+pub(crate) fn read_cache(
     file: &Path,
     key: &[u8; 32],
     width: usize,
@@ -603,7 +668,7 @@ fn read_cache(
 
 /// Writes `map` to `file` via a temporary name in the same directory and a
 /// rename, so a reader never sees a partial file.
-fn write_cache(file: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
+pub(crate) fn write_cache(file: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
     let dir = file.parent().unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let mut payload = Vec::with_capacity(4 * map.data.len());

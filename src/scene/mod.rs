@@ -9,6 +9,7 @@ pub mod camera;
 pub mod horizon;
 pub mod maps;
 pub mod surface;
+pub mod tiles;
 
 use std::path::{Path, PathBuf};
 
@@ -95,8 +96,13 @@ pub struct Relief {
     pub height_bound: f64,
     /// Tangent-space shading normals.
     pub normals: Option<NormalMap>,
-    /// Shadows cast by the relief of a DEM (`[body] shadows`).
+    /// Shadows cast by the relief of a DEM (`[body] shadows`), with the
+    /// horizon maps of its DEM tiles (`[[body.dem_tiles]]`) layered over.
     pub shadows: Option<std::sync::Arc<horizon::ReliefShadows>>,
+    /// Albedo tiles (`[[body.albedo_tiles]]`) over the albedo map (or the
+    /// model's albedo): kept here, with the relief, so that a `Body` built
+    /// elsewhere needs no new field.
+    pub albedo_tiles: Option<std::sync::Arc<tiles::TileSet>>,
 }
 
 impl Body {
@@ -357,6 +363,10 @@ struct BodyFile {
     displacement_map: Option<DisplacementMapFile>,
     normal_map: Option<NormalMapFile>,
     shadows: Option<ShadowsSpec>,
+    dem_tiles: Option<Vec<tiles::DemTileFile>>,
+    albedo_tiles: Option<Vec<tiles::AlbedoTileFile>>,
+    /// Largest |height| [m] of a DEM tile (default 25 km).
+    max_abs_height: Option<f64>,
     parameter_maps: Option<Vec<ParameterMapFile>>,
     #[serde(default)]
     lime_reference: bool,
@@ -510,7 +520,20 @@ impl Relief {
     /// (paths against `base`) and, with `displace`, the same DEM as the
     /// displacement. Errors name `body.shadows.<key>`.
     pub fn from_dem(spec: &ShadowsSpec, base: &Path, radius: f64) -> Result<Relief> {
-        let (shadows, dem) = relief_shadows(spec, base, radius)?;
+        Self::from_dem_tiles(spec, &[], tiles::DEFAULT_MAX_ABS_HEIGHT, base, radius)
+    }
+
+    /// [`Relief::from_dem`] with DEM tiles whose horizon maps are layered
+    /// over the global one. The tiles refine the shadows only: the
+    /// displacement stays the global DEM's (docs/SCENE.md).
+    pub fn from_dem_tiles(
+        spec: &ShadowsSpec,
+        dem_tiles: &[tiles::DemTileFile],
+        max_abs_height: f64,
+        base: &Path,
+        radius: f64,
+    ) -> Result<Relief> {
+        let (shadows, dem) = relief_shadows(spec, dem_tiles, max_abs_height, base, radius)?;
         let mut relief = Relief {
             shadows: Some(std::sync::Arc::new(shadows)),
             ..Relief::default()
@@ -534,10 +557,12 @@ fn default_azimuths() -> i64 {
     horizon::DEFAULT_AZIMUTHS as i64
 }
 
-/// The horizon map of `[body] shadows`, from its cache or computed, and
-/// the DEM [m] it was computed from.
+/// The horizon map of `[body] shadows` with its DEM tiles' maps layered
+/// over, from their caches or computed, and the global DEM [m].
 fn relief_shadows(
     s: &ShadowsSpec,
+    dem_tiles: &[tiles::DemTileFile],
+    max_abs_height: f64,
     base: &Path,
     radius: f64,
 ) -> Result<(horizon::ReliefShadows, EquirectMap)> {
@@ -574,11 +599,25 @@ fn relief_shadows(
         horizon::HorizonMap::load_or_compute(&path, &dem, &params, &cache_dir)
             .map_err(|e| Error::invalid(format!("{key}.dem"), e.to_string()))?;
     let (h_min, h_max) = dem.range();
+    let mut cell = radius * std::f64::consts::PI / dem.height as f64;
+    let mut relief = (h_max - h_min) as f64;
+    let mut map = map;
+    if !dem_tiles.is_empty() {
+        let key = "body.dem_tiles";
+        let set = tiles::load_dem_tiles(dem_tiles, base, max_abs_height, key)?;
+        let (overlay, _) = tiles::tile_horizons(&set, &path, &dem, &params, &cache_dir, key)?;
+        for t in set.tiles() {
+            let (lo, hi) = t.map.range();
+            relief = relief.max((hi.max(h_max) - lo.min(h_min)) as f64);
+            cell = cell.min(radius * t.grid.cell_lat());
+        }
+        map = map.with_overlay(overlay);
+    }
     let shadows = horizon::ReliefShadows {
         map,
         mode: s.mode,
-        cell: radius * std::f64::consts::PI / dem.height as f64,
-        relief: (h_max - h_min) as f64,
+        cell,
+        relief,
         cache,
         cache_file,
         seconds: start.elapsed().as_secs_f64(),
@@ -892,8 +931,24 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
         )?),
         None => None,
     };
+    let max_abs_height = match body.max_abs_height {
+        None => tiles::DEFAULT_MAX_ABS_HEIGHT,
+        Some(v) => within(
+            v,
+            tiles::MAX_ABS_HEIGHT_RANGE.0,
+            tiles::MAX_ABS_HEIGHT_RANGE.1,
+            "body.max_abs_height",
+        )?,
+    };
+    let dem_tiles = body.dem_tiles.as_deref().unwrap_or_default();
+    if !dem_tiles.is_empty() && body.shadows.is_none() {
+        return Err(Error::invalid(
+            "body.dem_tiles",
+            "DEM tiles are layered over the global DEM of `body.shadows`: give it",
+        ));
+    }
     let mut relief = match &body.shadows {
-        Some(s) => Relief::from_dem(s, body_base, radius)?,
+        Some(s) => Relief::from_dem_tiles(s, dem_tiles, max_abs_height, body_base, radius)?,
         None => Relief::default(),
     };
     if let Some(d) = &body.displacement_map {
@@ -910,6 +965,10 @@ fn body_from(body: &BodyFile, body_base: &Path) -> Result<Body> {
         let mut height = load_map(body_base, &d.path, "body.displacement_map.path")?;
         height.scale(d.scale);
         relief.set_height(height);
+    }
+    if let Some(files) = body.albedo_tiles.as_deref().filter(|f| !f.is_empty()) {
+        let set = tiles::load_albedo_tiles(files, body_base, "body.albedo_tiles")?;
+        relief.albedo_tiles = Some(std::sync::Arc::new(set));
     }
     if let Some(n) = &body.normal_map {
         let p = resolve(body_base, &n.path);
