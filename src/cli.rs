@@ -68,7 +68,7 @@ pub fn render(
         );
     }
     let plan = plan_settings(&mut scene, scene_path, max_pixel_error)?;
-    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let mut renderer = Renderer::new(scene.camera.render_pinhole().clone());
     let pixels = PixelGeometry::new(&renderer);
     let mut images = render_scene(&scene, &mut renderer, &pixels)?;
     images.summary.plan = plan;
