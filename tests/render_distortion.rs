@@ -56,9 +56,14 @@ fn lens_dir(name: &str, d: [f64; 5]) -> PathBuf {
 /// (x, y, 1), the camera at the origin with the identity attitude (the
 /// camera frame is the world frame) and the Sun behind it.
 fn scene(dir: &Path, x: f64, y: f64, supersample: usize) -> Scene {
+    Scene::from_toml(&scene_text(x, y, supersample), &dir.join("scene.toml")).expect("scene")
+}
+
+/// The text of [`scene`], its lens file `intrinsics.toml` beside it.
+fn scene_text(x: f64, y: f64, supersample: usize) -> String {
     let body = glam::DVec3::new(x, y, 1.0).normalize() * RANGE;
     let sun = body + (-body).normalize() * AU;
-    let text = format!(
+    format!(
         r#"
 [camera]
 resolution = [256, 240]
@@ -94,8 +99,7 @@ sun_position = [{sx}, {sy}, {sz}]
         sx = sun.x,
         sy = sun.y,
         sz = sun.z,
-    );
-    Scene::from_toml(&text, &dir.join("scene.toml")).expect("scene")
+    )
 }
 
 /// Electron-weighted centroid, this crate's pixel coordinates (centres at
@@ -189,4 +193,47 @@ fn a_lens_file_that_disagrees_with_the_camera_is_a_one_line_error() {
         .to_string();
     assert!(e.contains("camera.distortion") && !e.contains('\n'), "{e}");
     assert!(e.contains("256×250"), "{e}");
+}
+
+/// A dataset's labels are the pinhole camera's: a spec asking for them
+/// with a lens is refused, naming the key; images alone are accepted.
+#[test]
+fn a_dataset_with_a_lens_refuses_labels() {
+    let dir = lens_dir("dataset", DIST);
+    std::fs::write(dir.join("scene.toml"), scene_text(0.0, 0.0, 4)).unwrap();
+    let spec = |outputs: &str| {
+        format!(
+            "[dataset]\nscene = \"scene.toml\"\ncount = 2\nseed = 1\nout = \"out\"\noutputs = {outputs}\n\n[poses]\ndistance = [900.0, 1100.0]\nphase_deg = [0.0, 30.0]\n"
+        )
+    };
+    let path = dir.join("spec.toml");
+    let e = optistim::dataset::Spec::from_toml(&spec("[\"image\", \"labels\"]"), &path, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("dataset.outputs") && !e.contains('\n'), "{e}");
+    optistim::dataset::Spec::from_toml(&spec("[\"image\"]"), &path, None).expect("images only");
+}
+
+/// The lens's ideal grid and tables count in the memory bound, checked
+/// before anything is allocated: a 6000 × 6000 camera passes alone
+/// (1.6 GiB of images) but not with a lens (about 4.6 GiB).
+#[test]
+fn a_lens_beyond_the_memory_bound_is_refused_up_front() {
+    let dir = lens_dir("huge", DIST);
+    std::fs::write(
+        dir.join("intrinsics.toml"),
+        "width = 6000\nheight = 6000\ncamera_matrix = [[7000.0, 0.0, 2999.5], [0.0, 7000.0, 2999.5], [0.0, 0.0, 1.0]]\ndistortion = [-0.1, 0.0, 0.0, 0.0, 0.0]\n",
+    )
+    .unwrap();
+    let text = scene_text(0.0, 0.0, 4)
+        .replace("resolution = [256, 240]", "resolution = [6000, 6000]")
+        .replace("focal_length = 0.003", "focal_length = 0.07");
+    let e = Scene::from_toml(&text, &dir.join("scene.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("camera.distortion") && e.contains("GiB"), "{e}");
+    let plain = text
+        .replace("distortion = \"intrinsics.toml\"\n", "")
+        .replace("distortion_supersample = 4\n", "");
+    Scene::from_toml(&plain, &dir.join("scene.toml")).expect("the camera alone fits");
 }

@@ -301,15 +301,15 @@ impl Spectral {
     /// so it resamples divided by the ideal pixel's (`ideal_omega`) and
     /// is multiplied by the camera pixel's.
     fn distort(&mut self, lens: &crate::optics::distortion::Resampler, ideal_omega: &[f32]) {
-        self.radiance = lens.resample(&self.radiance);
         let per_sr: Vec<f32> = self
             .electron_rate
             .iter()
             .zip(ideal_omega)
             .map(|(&r, &o)| r / o)
             .collect();
-        self.electron_rate = lens
-            .resample(&per_sr)
+        let [radiance, per_sr] = lens.resample_all([&self.radiance, &per_sr]);
+        self.radiance = radiance;
+        self.electron_rate = per_sr
             .iter()
             .zip(&lens.solid_angle)
             .map(|(&r, &o)| r * o)

@@ -1166,7 +1166,24 @@ fn lens_from(
     }
     let supersample = c.distortion_supersample.unwrap_or(DISTORTION_SUPERSAMPLE);
     let lens = crate::optics::distortion::Lens::new(k, supersample).map_err(named)?;
-    check_resolution(lens.ideal.width, lens.ideal.height)?;
+    // The ideal grid's images and the lens tables come on top of the
+    // camera's images (checked by `check_resolution`), before either is
+    // allocated.
+    let (ideal, camera) = (
+        (lens.ideal.width * lens.ideal.height) as f64,
+        (lens.intrinsics.width * lens.intrinsics.height) as f64,
+    );
+    let bytes =
+        ideal * IMAGE_BYTES_PER_PIXEL + camera * (IMAGE_BYTES_PER_PIXEL + LENS_BYTES_PER_PIXEL);
+    if bytes > MAX_IMAGE_BYTES {
+        return Err(named(Error::Other(format!(
+            "the {}×{} px ideal grid and the lens tables imply {:.1} GiB with the images, more than the {:.0} GiB limit",
+            lens.ideal.width,
+            lens.ideal.height,
+            bytes / 1024f64.powi(3),
+            MAX_IMAGE_BYTES / 1024f64.powi(3)
+        ))));
+    }
     Ok(Some(lens))
 }
 
@@ -1194,6 +1211,10 @@ pub const MAX_IMAGE_BYTES: f64 = 2.0 * 1024.0 * 1024.0 * 1024.0;
 /// region only) come on top; they are left out so the bound does not
 /// depend on the machine.
 pub const IMAGE_BYTES_PER_PIXEL: f64 = 48.0;
+
+/// Bytes per camera pixel of a lens's tables (`optics::distortion::Resampler`):
+/// corner positions (24), centre direction (12) and solid angle (4).
+pub const LENS_BYTES_PER_PIXEL: f64 = 40.0;
 
 /// `camera.resolution` bounded by the memory its images imply, before
 /// anything is allocated.
