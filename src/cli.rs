@@ -55,6 +55,12 @@ pub fn render(
         .collect();
     optistim::outfile::check_no_earlier(&files, overwrite)?;
     let mut scene = Scene::from_file(scene_path)?;
+    if labels && scene.camera.distortion.is_some() {
+        anyhow::bail!(
+            "{}: --labels: the labels are a pinhole camera's and the scene's camera has camera.distortion",
+            scene_path.display()
+        );
+    }
     if let Some(d) = caps_per_pixel {
         scene.render.caps_per_pixel = Some(d);
         scene.render.check()?;

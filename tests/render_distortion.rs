@@ -237,3 +237,27 @@ fn a_lens_beyond_the_memory_bound_is_refused_up_front() {
         .replace("distortion_supersample = 4\n", "");
     Scene::from_toml(&plain, &dir.join("scene.toml")).expect("the camera alone fits");
 }
+
+/// `optistim render --labels` refuses a lens the same way, in one line,
+/// before writing anything.
+#[test]
+fn render_labels_with_a_lens_are_refused() {
+    let dir = lens_dir("cli", DIST);
+    std::fs::write(dir.join("scene.toml"), scene_text(0.0, 0.0, 4)).unwrap();
+    let out = dir.join("render-out");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
+        .arg("render")
+        .arg(dir.join("scene.toml"))
+        .arg("--out")
+        .arg(&out)
+        .arg("--labels")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("camera.distortion") && stderr.trim().lines().count() == 1,
+        "{stderr}"
+    );
+    assert!(!out.join("dn.png").exists());
+}
