@@ -56,6 +56,12 @@ pub fn render(
         .collect();
     optistim::outfile::check_no_earlier(&files, overwrite)?;
     let mut scene = Scene::from_file(scene_path)?;
+    if labels && scene.camera.distortion.is_some() {
+        anyhow::bail!(
+            "{}: --labels: the labels are a pinhole camera's and the scene's camera has camera.distortion",
+            scene_path.display()
+        );
+    }
     if let Some(d) = caps_per_pixel {
         scene.render.caps_per_pixel = Some(d);
         scene.render.check()?;
@@ -69,7 +75,7 @@ pub fn render(
         );
     }
     let plan = plan_settings(&mut scene, scene_path, max_pixel_error)?;
-    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let mut renderer = Renderer::new(scene.camera.render_pinhole().clone());
     let pixels = PixelGeometry::new(&renderer);
     let mut images = render_scene(&scene, &mut renderer, &pixels)?;
     images.summary.plan = plan;

@@ -160,7 +160,7 @@ pub fn expose_states(
         ));
     }
     let noise = NoiseModel::of(&scene.camera);
-    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let mut renderer = Renderer::new(scene.camera.render_pinhole().clone());
     let pixels = PixelGeometry::new(&renderer);
     let mut scene = scene.clone();
     // The sensor's DN is not needed: only the mean rate.

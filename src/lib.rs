@@ -22,7 +22,8 @@
 //!
 //! Support modules: [`error`] (the error type), [`infile`] (size-bounded
 //! input reads), [`outfile`] (outputs that never clobber), [`progress`]
-//! (progress bars, only on a terminal), [`fuzzing`]
+//! (progress bars, only on a terminal), [`memo`] (per-camera tables built
+//! once per process), [`fuzzing`]
 //! (every parser behind one entry point, for the property tests and the
 //! long-run fuzz harness).
 //!
@@ -44,6 +45,7 @@ pub mod fuzzing;
 pub mod infile;
 pub mod instruments;
 pub mod labels;
+pub mod memo;
 pub mod optics;
 pub mod outfile;
 pub mod planner;

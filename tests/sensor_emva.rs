@@ -164,6 +164,39 @@ fn photon_transfer_recovers_gain_read_noise_and_dark_current() {
     }
 }
 
+/// The sensor a render loop shares (`Sensor::shared`, built once per
+/// process) reads out byte for byte the frames of one built afresh, with
+/// smear and blooming on and a quarter of the frame over the full well.
+#[test]
+fn a_shared_sensor_gives_the_frames_of_a_fresh_one() {
+    let scene = flat_scene(12, 5, "transfer_time = 1e-4\nblooming = true");
+    let rate: Vec<f32> = common::render(&scene)
+        .electron_rate
+        .iter()
+        .enumerate()
+        .map(|(k, &r)| if k % 4 == 0 { 3.0 * r } else { r })
+        .collect();
+    let max_rate = rate.iter().copied().fold(0.0f32, f32::max) as f64;
+    let t = 0.5 * FULL_WELL / max_rate;
+    let pin = &scene.camera.pinhole;
+    let params = scene.camera.sensor.expect("sensor");
+    let shared = Sensor::shared(params, scene.camera.readout(), pin.width, pin.height);
+    let again = Sensor::shared(params, scene.camera.readout(), pin.width, pin.height);
+    assert!(std::sync::Arc::ptr_eq(&shared, &again), "built twice");
+    let fresh = sensor_of(&scene);
+    assert_eq!(shared.prnu_map(), fresh.prnu_map());
+    assert_eq!(shared.dsnu_map(), fresh.dsnu_map());
+    for frame in [0, 1, 77] {
+        let (a, b) = (
+            shared.expose(&rate, t, frame),
+            fresh.expose(&rate, t, frame),
+        );
+        assert!(a.saturated > 0, "no pixel over the full well");
+        assert_eq!(a.dn, b.dn, "frame {frame}");
+        assert_eq!(a.saturated, b.saturated);
+    }
+}
+
 #[test]
 fn render_writes_frame_zero_of_the_sensor() {
     let scene = flat_scene(16, 3, "");
@@ -259,18 +292,28 @@ fn blooming_conserves_charge_in_a_render() {
     let sensor = sensor_of(&scene);
     let (w, h) = (128, 128);
     let mut rate = vec![0.0f32; w * h];
-    rate[64 * w + 10] = 5.0 * FULL_WELL as f32; // 5 full wells in 1 s
+    // 5.2 full wells in 1 s whatever the pixel's PRNU: 5 pixels fill.
+    let spot = 5.2 * FULL_WELL;
+    rate[64 * w + 10] = (spot / sensor.prnu_map()[64 * w + 10] as f64) as f32;
     let t = 1.0;
-    let frame = sensor.expose(&rate, t, 0);
-    let column: f64 = (0..h)
-        .map(|j| frame.dn[j * w + 10] as f64 - OFFSET)
-        .sum::<f64>();
-    let dark_column: f64 = (0..h)
-        .map(|j| frame.dn[j * w + 11] as f64 - OFFSET)
-        .sum::<f64>();
-    let spot = 5.0 * FULL_WELL * sensor.prnu_map()[64 * w + 10] as f64;
-    let got = (column - dark_column) / GAIN;
+    // One frame's column difference has σ ≈ 420 e⁻ (the spot's own shot
+    // noise, 316 e⁻, and two columns of dark shot and read noise, 187 e⁻
+    // each): 1 % of the spot is 2.4 σ there, 6.7 σ over the mean of 8.
+    let frames = 8;
+    let got = (0..frames)
+        .map(|f| {
+            let frame = sensor.expose(&rate, t, f);
+            let column = |i: usize| {
+                (0..h)
+                    .map(|j| frame.dn[j * w + i] as f64 - OFFSET)
+                    .sum::<f64>()
+            };
+            (column(10) - column(11)) / GAIN
+        })
+        .sum::<f64>()
+        / frames as f64;
     assert!((got / spot - 1.0).abs() < 0.01, "{got} e- for {spot}");
+    let frame = sensor.expose(&rate, t, 0);
     // The spill is symmetric about the spot: 5 full pixels in a row
     // (full: within 4 read-noise σ of the full well), rows 62 to 66.
     let near_full = OFFSET + GAIN * (FULL_WELL - 4.0 * READ_NOISE);

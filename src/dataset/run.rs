@@ -116,7 +116,7 @@ impl Worker {
             .num_threads(1)
             .build()
             .map_err(|e| Error::Other(e.to_string()))?;
-        let renderer = pool.install(|| Renderer::new(spec.scene.camera.pinhole.clone()));
+        let renderer = pool.install(|| Renderer::new(spec.scene.camera.render_pinhole().clone()));
         let pixels = pool.install(|| PixelGeometry::new(&renderer));
         Ok(Worker {
             pool,
@@ -150,12 +150,17 @@ impl Worker {
                 &images.electrons,
             )?;
             write_u16_png(&dir.join("dn.png"), pin.width, pin.height, &images.dn)?;
-            // The summary without its wall-clock time: an item's bytes are
+            // The summary without its wall-clock times: an item's bytes are
             // a function of (spec, index) alone.
             let mut summary =
                 serde_json::to_value(&images.summary).map_err(|e| Error::Other(e.to_string()))?;
             if let Value::Object(m) = &mut summary {
                 m.remove("render_ms");
+                m.remove("psf_ms");
+                m.remove("distortion_ms");
+                if let Some(Value::Object(sensor)) = m.get_mut("sensor") {
+                    sensor.remove("sensor_ms");
+                }
             }
             labels::files::write_json(&dir.join("render.json"), &summary)?;
         }

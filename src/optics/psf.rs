@@ -7,12 +7,27 @@
 //! for the Airy pattern, in closed form for the Gaussian). It is truncated
 //! where the enclosed energy reaches [`ENCLOSED`] and renormalised, so a
 //! convolution conserves the image's power (except what leaves the frame).
+//! [`shared_kernel`] builds a camera's kernel once per process; a
+//! convolution only visits the part of the frame the image's non-zero
+//! pixels can reach.
+
+use std::sync::Arc;
 
 use rayon::prelude::*;
 use rustfft::{num_complex::Complex, FftPlanner};
 
 use crate::error::{Error, Result};
+use crate::memo::Memo;
 pub use crate::scene::camera::Psf;
+
+/// Kernels of the most recent PSFs.
+static KERNELS: Memo<Psf, Kernel> = Memo::new(4);
+
+/// The kernel of `psf`, built once per process (an Airy kernel tens of
+/// pixels wide takes about a second).
+pub fn shared_kernel(psf: &Psf) -> Result<Arc<Kernel>> {
+    KERNELS.get_or_build(psf.clone(), || kernel(psf))
+}
 
 /// Energy a kernel encloses before it is cut and renormalised.
 pub const ENCLOSED: f64 = 0.995;
@@ -134,37 +149,60 @@ fn gauss_legendre_square(i: f64, j: f64, f: &dyn Fn(f64, f64) -> f64) -> f64 {
 impl Kernel {
     /// `image` (`width` × `height`, row-major) convolved with the kernel;
     /// light beyond the frame is lost, none comes in from outside it.
-    /// Small kernels directly, large ones (an Airy pattern's rings reach
-    /// tens of pixels) by FFT.
+    /// Only the box of the non-zero pixels grown by the kernel's half-width
+    /// is computed (the rest stays 0). Small kernels directly, large ones
+    /// (an Airy pattern's rings reach tens of pixels) by FFT.
     pub fn convolve(&self, image: &[f32], width: usize, height: usize) -> Vec<f32> {
-        if 2 * self.half < DIRECT_MAX_SIDE {
-            self.convolve_direct(image, width, height)
+        let mut out = vec![0.0f32; image.len()];
+        let Some(b) = nonzero_box(image, width) else {
+            return out;
+        };
+        let grow = |lo: usize, hi: usize, n: usize| {
+            (lo.saturating_sub(self.half), (hi + self.half).min(n))
+        };
+        let (x0, x1) = grow(b.0, b.1, width);
+        let (y0, y1) = grow(b.2, b.3, height);
+        let (cw, ch) = (x1 - x0, y1 - y0);
+        // The crop holds every source pixel and every pixel they reach.
+        let crop: Vec<f32> = (y0..y1)
+            .flat_map(|y| image[y * width + x0..y * width + x1].iter().copied())
+            .collect();
+        let blurred = if 2 * self.half < DIRECT_MAX_SIDE {
+            self.convolve_direct(&crop, cw, ch)
         } else {
-            self.convolve_fft(image, width, height)
+            self.convolve_fft(&crop, cw, ch)
+        };
+        for (y, row) in blurred.chunks(cw).enumerate() {
+            out[(y0 + y) * width + x0..][..cw].copy_from_slice(row);
         }
+        out
     }
 
+    /// Direct convolution, one kernel weight at a time along whole rows
+    /// (the inner loop vectorises).
     fn convolve_direct(&self, image: &[f32], width: usize, height: usize) -> Vec<f32> {
-        let (h, n) = (self.half as isize, 2 * self.half + 1);
+        let (h, n) = (self.half, 2 * self.half + 1);
+        let weights: Vec<f32> = self.weights.iter().map(|&w| w as f32).collect();
         let mut out = vec![0.0f32; image.len()];
         out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
-            for (x, o) in row.iter_mut().enumerate() {
-                let mut acc = 0.0f64;
-                for ky in 0..n {
-                    let sy = y as isize + h - ky as isize;
-                    if sy < 0 || sy >= height as isize {
+            for ky in 0..n {
+                // Source row y + h − ky.
+                let Some(sy) = (y + h).checked_sub(ky).filter(|&s| s < height) else {
+                    continue;
+                };
+                let src = &image[sy * width..][..width];
+                for (kx, &w) in weights[ky * n..][..n].iter().enumerate() {
+                    // Output x takes source x + h − kx.
+                    let lo = kx.saturating_sub(h);
+                    let hi = (width + kx).saturating_sub(h).min(width);
+                    if lo >= hi {
                         continue;
                     }
-                    let src = &image[sy as usize * width..][..width];
-                    let krow = &self.weights[ky * n..][..n];
-                    for (kx, &w) in krow.iter().enumerate() {
-                        let sx = x as isize + h - kx as isize;
-                        if sx >= 0 && sx < width as isize {
-                            acc += w * src[sx as usize] as f64;
-                        }
+                    let s = &src[lo + h - kx..hi + h - kx];
+                    for (o, &v) in row[lo..hi].iter_mut().zip(s) {
+                        *o += w * v;
                     }
                 }
-                *o = acc as f32;
             }
         });
         out
@@ -242,6 +280,23 @@ pub fn point_stamp(psf: &Psf, u: f64, v: f64) -> Result<Stamp> {
     })
 }
 
+/// The box [x0, x1) × [y0, y1) of the non-zero pixels, None if all are 0.
+pub(crate) fn nonzero_box(image: &[f32], width: usize) -> Option<(usize, usize, usize, usize)> {
+    let rows: Vec<(usize, usize, usize)> = image
+        .par_chunks(width)
+        .enumerate()
+        .filter_map(|(y, row)| {
+            let first = row.iter().position(|&v| v != 0.0)?;
+            let last = row.iter().rposition(|&v| v != 0.0)?;
+            Some((y, first, last + 1))
+        })
+        .collect();
+    let (y0, y1) = (rows.first()?.0, rows.last()?.0 + 1);
+    let x0 = rows.iter().map(|r| r.1).min()?;
+    let x1 = rows.iter().map(|r| r.2).max()?;
+    Some((x0, x1, y0, y1))
+}
+
 /// Kernels up to this side are applied directly.
 const DIRECT_MAX_SIDE: usize = 15;
 
@@ -316,6 +371,47 @@ mod tests {
         for (x, y) in a.iter().zip(&b) {
             assert!((x - y).abs() < 1e-3, "{x} vs {y}");
         }
+    }
+
+    /// The crop to the non-zero box changes nothing: a small blob in a
+    /// large frame convolves as the brute-force sum written here does.
+    #[test]
+    fn cropped_convolution_matches_brute_force() {
+        for sigma in [0.8, 3.0] {
+            let k = kernel(&Psf::Gaussian { sigma_px: sigma }).unwrap();
+            let (w, h) = (60usize, 45usize);
+            let mut img = vec![0.0f32; w * h];
+            for (x, y, v) in [(3, 40, 5.0), (20, 21, 1.0), (22, 23, 2.0), (58, 2, 7.0)] {
+                img[y * w + x] = v;
+            }
+            let got = k.convolve(&img, w, h);
+            let n = 2 * k.half as isize + 1;
+            for y in 0..h as isize {
+                for x in 0..w as isize {
+                    let mut want = 0.0f64;
+                    for ky in 0..n {
+                        for kx in 0..n {
+                            let (sx, sy) = (x + k.half as isize - kx, y + k.half as isize - ky);
+                            if (0..w as isize).contains(&sx) && (0..h as isize).contains(&sy) {
+                                want += k.weights[(ky * n + kx) as usize]
+                                    * img[(sy * w as isize + sx) as usize] as f64;
+                            }
+                        }
+                    }
+                    let g = got[(y * w as isize + x) as usize] as f64;
+                    assert!((g - want).abs() < 1e-5, "{sigma} ({x}, {y}): {g} vs {want}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn shared_kernels_equal_fresh_ones() {
+        let psf = Psf::Gaussian { sigma_px: 1.3 };
+        let a = shared_kernel(&psf).unwrap();
+        let b = shared_kernel(&psf).unwrap();
+        assert!(Arc::ptr_eq(&a, &b));
+        assert_eq!(*a, kernel(&psf).unwrap());
     }
 
     #[test]

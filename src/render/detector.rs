@@ -73,6 +73,15 @@ pub struct Summary {
     pub samples: u64,
     /// Wall-clock time of the render [ms].
     pub render_ms: f64,
+    /// Wall-clock time of the PSF's convolution (and its kernel, the first
+    /// time a process uses it) [ms], when the camera has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psf_ms: Option<f64>,
+    /// Wall-clock time of the distortion's resampling (and its tables,
+    /// the first time a process uses the lens) [ms], when the camera has
+    /// one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distortion_ms: Option<f64>,
     /// Sub-bands the band was split into.
     pub sub_bands: usize,
     /// Solar irradiance in band at 1 au [W m⁻²].
@@ -108,7 +117,8 @@ pub struct SensorSummary {
     pub params: SensorParams,
     /// Frame index of the noise draw.
     pub frame: u64,
-    /// Wall-clock time of the chain (maps and frame) [ms].
+    /// Wall-clock time of the chain (the frame, and the maps the first
+    /// time a process uses the camera) [ms].
     pub sensor_ms: f64,
 }
 
@@ -175,17 +185,42 @@ pub fn render_scene(
     let start = Instant::now();
     let cam = &scene.camera;
     let pin = &cam.pinhole;
-    if renderer.camera() != pin {
+    let grid = cam.render_pinhole();
+    if renderer.camera() != grid {
         return Err(Error::Other(
-            "renderer grid differs from the scene camera".into(),
+            "renderer grid differs from the scene camera's render grid".into(),
         ));
     }
     let bands = plan_bands(scene);
     let mut spectral = render_bands(scene, renderer, pixels, &bands);
     let render_ms = start.elapsed().as_secs_f64() * 1e3;
+    let psf_start = Instant::now();
     if let Some(psf) = &cam.psf {
-        spectral.blur(&crate::optics::psf::kernel(psf)?, pin.width, pin.height);
+        let kernel = crate::optics::psf::shared_kernel(psf)?;
+        spectral.blur(&kernel, grid.width, grid.height);
     }
+    let psf_ms = cam
+        .psf
+        .as_ref()
+        .map(|_| psf_start.elapsed().as_secs_f64() * 1e3);
+    let distortion_start = Instant::now();
+    let lens = cam.distortion.as_ref().map(|l| l.resampler()).transpose()?;
+    let output = match &lens {
+        Some(lens) => {
+            spectral.distort(lens, &pixels.solid_angle);
+            OutputPixels {
+                solid_angle: &lens.solid_angle,
+                direction: Some(&lens.direction),
+            }
+        }
+        None => OutputPixels {
+            solid_angle: &pixels.solid_angle,
+            direction: None,
+        },
+    };
+    let distortion_ms = lens
+        .as_ref()
+        .map(|_| distortion_start.elapsed().as_secs_f64() * 1e3);
     let band_irradiance: f64 = bands.iter().map(|b| b.irradiance_1au).sum();
     let band_electrons: f64 = bands.iter().map(|b| b.electron_rate_1au).sum();
     // L_eff = (∫ L R dλ) ∫E☉ / ∫E☉R; ∫ L R dλ = electron rate / Ω.
@@ -199,7 +234,7 @@ pub fn render_scene(
         None => None,
     };
     let star_rate = stars.as_ref().map(|s| s.electron_rate.as_slice());
-    let mut d = detect(scene, pixels, &spectral, to_effective, star_rate);
+    let mut d = detect(scene, &output, &spectral, to_effective, star_rate);
     let sensor = cam.sensor.map(|params| apply_sensor(scene, params, &mut d));
     let effective_all_caps = spectral.all_caps_electrons * to_effective;
     let range = (scene.state.camera_position - scene.state.body_position).length();
@@ -228,6 +263,8 @@ pub fn render_scene(
             saturated_pixels: d.saturated,
             samples: spectral.stats.caps,
             render_ms,
+            psf_ms,
+            distortion_ms,
             sub_bands: bands.len(),
             band_irradiance_1au_w_m2: band_irradiance,
             apparent_radius_deg: apparent.to_degrees(),
@@ -266,6 +303,34 @@ impl Spectral {
         self.radiance = kernel.convolve(&self.radiance, width, height);
         self.electron_rate = kernel.convolve(&self.electron_rate, width, height);
     }
+
+    /// The lens: the ideal grid's images resampled onto the camera's
+    /// pixels. Radiance is conserved along rays, so it resamples as it
+    /// is; the electron rate is a radiance times the pixel's solid angle,
+    /// so it resamples divided by the ideal pixel's (`ideal_omega`) and
+    /// is multiplied by the camera pixel's.
+    fn distort(&mut self, lens: &crate::optics::distortion::Resampler, ideal_omega: &[f32]) {
+        let per_sr: Vec<f32> = self
+            .electron_rate
+            .iter()
+            .zip(ideal_omega)
+            .map(|(&r, &o)| r / o)
+            .collect();
+        let [radiance, per_sr] = lens.resample_all([&self.radiance, &per_sr]);
+        self.radiance = radiance;
+        self.electron_rate = per_sr
+            .iter()
+            .zip(&lens.solid_angle)
+            .map(|(&r, &o)| r * o)
+            .collect();
+    }
+}
+
+/// The camera's pixels the detector reads out: their solid angles and,
+/// through a lens, their centres' directions (else the pinhole's).
+struct OutputPixels<'a> {
+    solid_angle: &'a [f32],
+    direction: Option<&'a [[f32; 3]]>,
 }
 
 /// Renders each sub-band at its own model and sums radiance and electron
@@ -276,8 +341,8 @@ fn render_bands(
     pixels: &PixelGeometry,
     bands: &[BandIntegral],
 ) -> Spectral {
-    let pin = &scene.camera.pinhole;
-    let n = pin.width * pin.height;
+    let grid = renderer.camera().clone();
+    let n = grid.width * grid.height;
     let mut out = Spectral {
         radiance: vec![0.0f32; n],
         electron_rate: vec![0.0f32; n],
@@ -295,7 +360,7 @@ fn render_bands(
         let flux = renderer.flux();
         let roi = out.stats.roi;
         for row in roi.y0..roi.y1 {
-            let span = row * pin.width + roi.x0..row * pin.width + roi.x1;
+            let span = row * grid.width + roi.x0..row * grid.width + roi.x1;
             let pixels = flux[span.clone()]
                 .iter()
                 .zip(&pixels.solid_angle[span.clone()])
@@ -334,7 +399,7 @@ struct Detected {
 /// the camera-effective radiance (of the body alone).
 fn detect(
     scene: &Scene,
-    pixels: &PixelGeometry,
+    pixels: &OutputPixels,
     spectral: &Spectral,
     to_effective: f64,
     stars: Option<&[f32]>,
@@ -359,7 +424,10 @@ fn detect(
             if spectral.radiance[k] == 0.0 && star_rate == 0.0 {
                 continue;
             }
-            let dir = pin.pixel_direction(i, j);
+            let dir = match pixels.direction {
+                Some(d) => glam::DVec3::from(d[k].map(f64::from)),
+                None => pin.pixel_direction(i, j),
+            };
             let cos_los = dir.dot(los);
             let omega = pixels.solid_angle[k] as f64;
             let rate = spectral.electron_rate[k] as f64;
@@ -394,7 +462,7 @@ fn apply_sensor(scene: &Scene, params: SensorParams, d: &mut Detected) -> Sensor
     let start = Instant::now();
     let cam = &scene.camera;
     let pin = &cam.pinhole;
-    let sensor = Sensor::new(params, cam.readout(), pin.width, pin.height);
+    let sensor = Sensor::shared(params, cam.readout(), pin.width, pin.height);
     let frame = sensor.expose(&d.electron_rate, cam.exposure, cam.sensor_frame);
     d.peak_dn = frame.dn.iter().copied().max().unwrap_or(0) as u32;
     d.saturated = frame.saturated;

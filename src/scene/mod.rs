@@ -57,6 +57,9 @@ pub struct Camera {
     /// The optics' point spread function (`camera.psf`), integrated over
     /// each pixel; None: the pinhole's ideal image.
     pub psf: Option<Psf>,
+    /// Lens distortion (`camera.distortion`): the renderer draws the ideal
+    /// image on `distortion.ideal` and resamples it onto `pinhole`'s grid.
+    pub distortion: Option<crate::optics::distortion::Lens>,
     /// Which frame of the sensor's temporal noise a render draws (0 for a
     /// scene file; a dataset item's own noise seed, so items differ in
     /// their noise but share the camera's PRNU and DSNU).
@@ -64,6 +67,14 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// The grid the renderer draws on: the ideal grid covering the
+    /// distorted field with `camera.distortion`, else the camera's own.
+    pub fn render_pinhole(&self) -> &Pinhole {
+        self.distortion
+            .as_ref()
+            .map_or(&self.pinhole, |lens| &lens.ideal)
+    }
+
     /// Full well, gain and bits: the readout the sensor chain ends in.
     pub fn readout(&self) -> Readout {
         Readout {
@@ -302,6 +313,10 @@ pub struct CameraFile {
     transmission: ResponseFile,
     sensor: Option<SensorFile>,
     psf: Option<PsfFile>,
+    /// Brown–Conrady distortion: an intrinsics file of the geometric
+    /// calibration's format (`instruments::intrinsics`).
+    distortion: Option<PathBuf>,
+    distortion_supersample: Option<usize>,
 }
 
 /// `camera.psf`: the optics' point spread function.
@@ -1223,6 +1238,7 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
             psf.validate("camera.psf").map(|_| psf)
         })
         .transpose()?;
+    let distortion = lens_from(c, base, focal_length / pitch)?;
     let quantum_efficiency = response(&c.quantum_efficiency, base, "camera.quantum_efficiency")?;
     let transmission = response(&c.transmission, base, "camera.transmission")?;
     check_band_response(&quantum_efficiency, &transmission, band)?;
@@ -1231,8 +1247,9 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
     } else {
         max_dn / full_well
     };
-    Ok(Camera {
-        pinhole: Pinhole {
+    let pinhole = match &distortion {
+        Some(lens) => lens.pinhole(),
+        None => Pinhole {
             width,
             height,
             fx: focal_length / pitch,
@@ -1240,6 +1257,9 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
             cx,
             cy,
         },
+    };
+    Ok(Camera {
+        pinhole,
         pixel_pitch: pitch,
         focal_length,
         f_number,
@@ -1252,8 +1272,74 @@ pub fn camera_from(c: &CameraFile, base: &Path) -> Result<Camera> {
         transmission,
         sensor,
         psf,
+        distortion,
         sensor_frame: 0,
     })
+}
+
+/// Default sample points per pixel and axis of the distortion's resampling.
+const DISTORTION_SUPERSAMPLE: usize = 4;
+
+/// `camera.distortion`: the intrinsics file (its errors name it), which
+/// must match `camera.resolution` and, within 5 %, the focal length in
+/// pixels `fx_nominal` the pupil is sized from; it replaces
+/// `principal_point`.
+fn lens_from(
+    c: &CameraFile,
+    base: &Path,
+    fx_nominal: f64,
+) -> Result<Option<crate::optics::distortion::Lens>> {
+    let Some(path) = &c.distortion else {
+        return match c.distortion_supersample {
+            Some(_) => Err(Error::invalid(
+                "camera.distortion_supersample",
+                "given without camera.distortion",
+            )),
+            None => Ok(None),
+        };
+    };
+    let file = resolve(base, path);
+    let k = crate::instruments::intrinsics::CameraIntrinsics::load(&file)?;
+    let named = |e: Error| Error::invalid("camera.distortion", format!("{}: {e}", file.display()));
+    if [k.width, k.height] != c.resolution {
+        return Err(named(Error::Other(format!(
+            "{}×{} px, camera.resolution is {}×{}",
+            k.width, k.height, c.resolution[0], c.resolution[1]
+        ))));
+    }
+    if c.principal_point.is_some() {
+        return Err(Error::invalid(
+            "camera.principal_point",
+            "camera.distortion's file gives the principal point: remove one of them",
+        ));
+    }
+    let fx = k.camera_matrix[0][0];
+    if (fx / fx_nominal - 1.0).abs() > 0.05 {
+        return Err(named(Error::Other(format!(
+            "fx = {fx} px differs from focal_length / pixel_pitch = {fx_nominal} px by over 5 %"
+        ))));
+    }
+    let supersample = c.distortion_supersample.unwrap_or(DISTORTION_SUPERSAMPLE);
+    let lens = crate::optics::distortion::Lens::new(k, supersample).map_err(named)?;
+    // The ideal grid's images and the lens tables come on top of the
+    // camera's images (checked by `check_resolution`), before either is
+    // allocated.
+    let (ideal, camera) = (
+        (lens.ideal.width * lens.ideal.height) as f64,
+        (lens.intrinsics.width * lens.intrinsics.height) as f64,
+    );
+    let bytes =
+        ideal * IMAGE_BYTES_PER_PIXEL + camera * (IMAGE_BYTES_PER_PIXEL + LENS_BYTES_PER_PIXEL);
+    if bytes > MAX_IMAGE_BYTES {
+        return Err(named(Error::Other(format!(
+            "the {}×{} px ideal grid and the lens tables imply {:.1} GiB with the images, more than the {:.0} GiB limit",
+            lens.ideal.width,
+            lens.ideal.height,
+            bytes / 1024f64.powi(3),
+            MAX_IMAGE_BYTES / 1024f64.powi(3)
+        ))));
+    }
+    Ok(Some(lens))
 }
 
 /// The `state.epoch` text of a scene file, if it gives one (the labels
@@ -1280,6 +1366,10 @@ pub const MAX_IMAGE_BYTES: f64 = 2.0 * 1024.0 * 1024.0 * 1024.0;
 /// region only) come on top; they are left out so the bound does not
 /// depend on the machine.
 pub const IMAGE_BYTES_PER_PIXEL: f64 = 48.0;
+
+/// Bytes per camera pixel of a lens's tables (`optics::distortion::Resampler`):
+/// corner positions (24), centre direction (12) and solid angle (4).
+pub const LENS_BYTES_PER_PIXEL: f64 = 40.0;
 
 /// `camera.resolution` bounded by the memory its images imply, before
 /// anything is allocated.

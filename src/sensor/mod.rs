@@ -18,14 +18,24 @@
 //! PRNU_k = max(0, 1 + prnu · N(0, 1)) and DSNU_k = dsnu · N(0, 1) are
 //! fixed per pixel by `seed`; the temporal noise of frame f is drawn from
 //! (seed, f, pixel), so a frame is reproducible whatever the thread count.
+//! [`Sensor::shared`] keeps the maps of recent cameras, so a render loop
+//! builds them once. The light and dark charge is one Poisson draw, exact
+//! below a mean of 30 e⁻ and the rounded normal N(μ, μ) above (its mean
+//! and variance within 0.1 % of Poisson's, [`rng::Rng::poisson`]).
 
 pub mod rng;
+
+use std::sync::Arc;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use rng::Rng;
+use crate::memo::Memo;
+use rng::Stream;
+
+/// Sensors (their maps) of the most recent cameras.
+static SENSORS: Memo<(SensorParams, Readout, usize, usize), Sensor> = Memo::new(2);
 
 /// Random stream of the PRNU and DSNU maps.
 const MAP_STREAM: u64 = 1;
@@ -130,6 +140,8 @@ pub struct Sensor {
     height: usize,
     prnu: Vec<f32>,
     dsnu: Vec<f32>,
+    /// `readout.max_dn()`, computed once (it is a power of two less one).
+    max_dn: f64,
 }
 
 /// One frame read out.
@@ -147,11 +159,12 @@ impl Sensor {
         let n = width * height;
         let (mut prnu, mut dsnu) = (vec![1.0f32; n], vec![0.0f32; n]);
         if params.prnu > 0.0 || params.dsnu > 0.0 {
+            let maps = Stream::new(params.seed, MAP_STREAM);
             prnu.par_iter_mut()
                 .zip(dsnu.par_iter_mut())
                 .enumerate()
                 .for_each(|(k, (g, o))| {
-                    let mut rng = Rng::new(params.seed, MAP_STREAM, k as u64);
+                    let mut rng = maps.at(k as u64);
                     *g = (1.0 + params.prnu * rng.normal_fast()).max(0.0) as f32;
                     *o = (params.dsnu * rng.normal_fast()) as f32;
                 });
@@ -163,6 +176,25 @@ impl Sensor {
             height,
             prnu,
             dsnu,
+            max_dn: readout.max_dn(),
+        }
+    }
+
+    /// The sensor of these parameters, its maps built once per process
+    /// for the two most recent cameras ([`Sensor::new`] otherwise).
+    pub fn shared(
+        params: SensorParams,
+        readout: Readout,
+        width: usize,
+        height: usize,
+    ) -> Arc<Sensor> {
+        let key = (params, readout, width, height);
+        let built = SENSORS.get_or_build(key, || {
+            Ok::<_, std::convert::Infallible>(Sensor::new(params, readout, width, height))
+        });
+        match built {
+            Ok(sensor) => sensor,
+            Err(never) => match never {},
         }
     }
 
@@ -185,28 +217,36 @@ impl Sensor {
     /// `rate` [e⁻/s] per pixel (row-major, before PRNU).
     pub fn expose(&self, rate: &[f32], exposure: f64, frame: u64) -> SensorFrame {
         assert_eq!(rate.len(), self.width * self.height, "rate image size");
-        let smear = self.smear(rate);
         let w = self.width;
-        let dark = DarkDraw::new(self.params.dark_current * exposure);
-        let pixel = |k: usize| self.collect(rate[k], smear[k % w], &dark, exposure, frame, k);
-        let dn: Vec<u16> = if self.params.blooming {
-            let (mut charge, read): (Vec<f64>, Vec<f32>) =
-                (0..rate.len()).into_par_iter().map(pixel).unzip();
-            bloom(&mut charge, w, self.readout.full_well);
-            charge
-                .par_iter()
-                .zip(&read)
-                .map(|(&q, &r)| self.digitise(q + r as f64))
-                .collect()
-        } else {
-            (0..rate.len())
-                .into_par_iter()
-                .map(|k| {
-                    let (q, r) = pixel(k);
-                    self.digitise(q + r as f64)
-                })
-                .collect()
+        let draw = Draw {
+            smear: self.smear(rate),
+            dark: DarkDraw::new(self.params.dark_current * exposure),
+            exposure,
+            stream: Stream::new(self.params.seed, FRAME_STREAM + frame),
         };
+        let full_well = self.readout.full_well;
+        let bloom = self.params.blooming;
+        let mut dn = vec![0u16; rate.len()];
+        // One pass draws and digitises every pixel and notes the columns
+        // holding charge over the full well; only those are bloomed.
+        let mut over: Vec<usize> = dn
+            .par_chunks_mut(w)
+            .enumerate()
+            .flat_map_iter(|(j, row)| {
+                let mut over = Vec::new();
+                for (i, out) in row.iter_mut().enumerate() {
+                    let (q, r) = self.collect(rate, &draw, i, j * w + i);
+                    if bloom && q > full_well {
+                        over.push(i);
+                    }
+                    *out = self.digitise(q + r);
+                }
+                over
+            })
+            .collect();
+        over.sort_unstable();
+        over.dedup();
+        self.bloom_columns(&over, rate, &draw, &mut dn);
         let r = &self.readout;
         let sat_dn = (self.params.offset + r.gain * r.full_well)
             .round()
@@ -215,34 +255,62 @@ impl Sensor {
         SensorFrame { dn, saturated }
     }
 
-    /// Steps 1, 2 and the draw of 4 for pixel `k`: its charge (light and
-    /// dark electrons, one Poisson draw of their summed mean, plus DSNU)
-    /// and its read noise [e⁻].
+    /// Step 3 on the columns `columns`: their charge drawn again (the
+    /// draws are a function of the pixel), bloomed and digitised into `dn`.
+    fn bloom_columns(&self, columns: &[usize], rate: &[f32], draw: &Draw, dn: &mut [u16]) {
+        let (w, h) = (self.width, self.height);
+        let bloomed: Vec<(usize, Vec<u16>)> = columns
+            .par_iter()
+            .map(|&i| {
+                let (mut charge, read): (Vec<f64>, Vec<f64>) = (0..h)
+                    .map(|j| self.collect(rate, draw, i, j * w + i))
+                    .unzip();
+                bloom_column(&mut charge, self.readout.full_well);
+                let column = charge
+                    .iter()
+                    .zip(&read)
+                    .map(|(&q, &r)| self.digitise(q + r))
+                    .collect();
+                (i, column)
+            })
+            .collect();
+        for (i, column) in bloomed {
+            for (j, v) in column.into_iter().enumerate() {
+                dn[j * w + i] = v;
+            }
+        }
+    }
+
+    /// Steps 1, 2 and the draw of 4 for pixel `k` (in column `column`):
+    /// its charge (light and dark electrons, one Poisson draw of their
+    /// summed mean, plus DSNU) and its read noise [e⁻].
     #[inline]
-    fn collect(
-        &self,
-        rate: f32,
-        smear: f64,
-        dark: &DarkDraw,
-        exposure: f64,
-        frame: u64,
-        k: usize,
-    ) -> (f64, f32) {
-        let p = &self.params;
-        let mut rng = Rng::new(p.seed, FRAME_STREAM + frame, k as u64);
-        let light = self.prnu[k] as f64 * (rate as f64 * exposure + smear);
-        let electrons = match dark.limit {
-            // A dark pixel (most of a sky frame): e^(−mean) once per frame.
-            Some(limit) if light == 0.0 => rng.poisson_small(limit),
-            _ => rng.poisson_fast(dark.mean + light),
+    fn collect(&self, rate: &[f32], draw: &Draw, column: usize, k: usize) -> (f64, f64) {
+        let mut rng = draw.stream.at(k as u64);
+        let smear = draw.smear[column];
+        let light = self.prnu[k] as f64 * (rate[k] as f64 * draw.exposure + smear);
+        let sigma = self.params.read_noise;
+        let (electrons, read) = match draw.dark.limit {
+            // A dark pixel (most of a sky frame): e^(−mean) once per frame,
+            // and one draw for the Poisson step and the read noise.
+            Some(limit) if light == 0.0 => {
+                let (u, v) = rng.two_uniforms();
+                let e = rng.poisson_small_from(u, limit);
+                (e, sigma * rng::normal_quantile_fast(v))
+            }
+            _ => {
+                let e = rng.poisson_fast(draw.dark.mean + light);
+                (
+                    e,
+                    if sigma > 0.0 {
+                        sigma * rng.normal_fast()
+                    } else {
+                        0.0
+                    },
+                )
+            }
         };
-        let charge = electrons + self.dsnu[k] as f64;
-        let read = if p.read_noise > 0.0 {
-            p.read_noise * rng.normal_fast()
-        } else {
-            0.0
-        };
-        (charge, read as f32)
+        (electrons + self.dsnu[k] as f64, read)
     }
 
     /// Step 5: full well, gain, offset, rounding and the ADC range.
@@ -251,7 +319,7 @@ impl Sensor {
         let r = &self.readout;
         (self.params.offset + r.gain * electrons.min(r.full_well))
             .round()
-            .clamp(0.0, r.max_dn())
+            .clamp(0.0, self.max_dn)
             .min(u16::MAX as f64) as u16
     }
 
@@ -270,6 +338,16 @@ impl Sensor {
         }
         sums.iter().map(|s| s * per_row).collect()
     }
+}
+
+/// What one frame's draws share.
+struct Draw {
+    /// Smear electrons per column.
+    smear: Vec<f64>,
+    dark: DarkDraw,
+    exposure: f64,
+    /// The frame's random stream: pixel k draws from `stream.at(k)`.
+    stream: Stream,
 }
 
 /// The dark charge's mean over one exposure and, below 30 e⁻, its e^(−mean).

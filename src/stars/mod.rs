@@ -224,7 +224,12 @@ pub fn project(field: &StarField, scene: &Scene, margin: f64) -> Vec<ProjectedSt
             if c.z <= 0.0 {
                 return None;
             }
-            let (u, v) = pin.project(c);
+            // Through the lens where the camera has one: the body's image
+            // is resampled onto the distorted pixels, so the stars must be too.
+            let (u, v) = match &cam.distortion {
+                Some(lens) => lens.intrinsics.direction_to_pixel(c)?,
+                None => pin.project(c),
+            };
             if !(u > -margin && u < w + margin && v > -margin && v < h + margin) {
                 return None;
             }

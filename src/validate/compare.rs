@@ -458,6 +458,7 @@ pub fn build_scene(
         psf: options
             .psf_sigma_px
             .map(|sigma_px| crate::scene::camera::Psf::Gaussian { sigma_px }),
+        distortion: None,
         sensor_frame: 0,
     };
     let sun = SolarSpectrum::from_csv(&options.solar_spectrum, Some(1361.0))?;
@@ -709,7 +710,7 @@ fn render_observation(
     ecl: Option<&EclipseReport>,
 ) -> Result<Rendered> {
     let scene = build_scene(obs, choice, options, ecl)?;
-    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let mut renderer = Renderer::new(scene.camera.render_pinhole().clone());
     let pixels = PixelGeometry::new(&renderer);
     let images = render_scene(&scene, &mut renderer, &pixels)?;
     let pin = &scene.camera.pinhole;

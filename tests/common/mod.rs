@@ -149,7 +149,7 @@ geometry = "{geom}"
 
 /// Render through the whole chain.
 pub fn render(scene: &Scene) -> SceneImages {
-    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let mut renderer = Renderer::new(scene.camera.render_pinhole().clone());
     let pixels = PixelGeometry::new(&renderer);
     render_scene(scene, &mut renderer, &pixels).expect("render")
 }
