@@ -261,3 +261,44 @@ fn render_labels_with_a_lens_are_refused() {
     );
     assert!(!out.join("dn.png").exists());
 }
+
+/// A star seen through the lens lands where OpenCV's formula puts its
+/// direction (within 0.05 px): the stars are drawn on the distorted
+/// pixels, as the body's image is resampled onto them. The camera frame is
+/// the world frame here, so the star's RA/Dec is its camera direction.
+#[test]
+fn a_star_through_the_lens_lands_on_opencvs_formula() {
+    let dir = lens_dir("star", DIST);
+    for (x, y) in [(0.3, -0.22), (-0.31, 0.25), (0.05, 0.28)] {
+        let d = glam::DVec3::new(x, y, 1.0).normalize();
+        let (ra, dec) = (
+            d.y.atan2(d.x).to_degrees().rem_euclid(360.0),
+            d.z.asin().to_degrees(),
+        );
+        let catalogue = dir.join("stars.csv");
+        std::fs::write(
+            &catalogue,
+            format!("ra_deg,dec_deg,pm_ra_mas_per_yr,pm_dec_mas_per_yr,v_mag,b_v\n{ra},{dec},0,0,2.0,0.6\n"),
+        )
+        .unwrap();
+        let text = scene_text(0.0, 0.0, 4).replace(
+            "distortion_supersample = 4\n",
+            "distortion_supersample = 4\npsf = { model = \"gaussian\", sigma_px = 0.8 }\n",
+        ) + &format!("\n[stars]\ncatalogue = \"{}\"\n", catalogue.display());
+        let scene = Scene::from_toml(&text, &dir.join("scene.toml")).expect("scene");
+        let images = common::render(&scene);
+        let (u_cv, v_cv) = opencv_pixel(x, y, DIST);
+        // The star's own window (the body sits at the centre, far away).
+        let (i0, j0) = (u_cv.round() as usize - 6, v_cv.round() as usize - 6);
+        let mut window = vec![0.0f32; 256 * 240];
+        for j in j0..j0 + 13 {
+            for i in i0..i0 + 13 {
+                window[j * 256 + i] = images.electrons[j * 256 + i];
+            }
+        }
+        let (u, v) = centroid(&window, 256);
+        let err = (u - (u_cv + 0.5)).hypot(v - (v_cv + 0.5));
+        println!("star at ({x}, {y}): ({u:.4}, {v:.4}) vs OpenCV ({u_cv:.4}, {v_cv:.4}) + 0.5: {err:.4} px");
+        assert!(err < 0.05, "star off by {err} px");
+    }
+}
