@@ -99,6 +99,10 @@ pub struct ReliefShadows {
     pub cache_file: PathBuf,
     /// Wall time [s] of loading or computing the map.
     pub seconds: f64,
+    /// The DEM file the map was made from.
+    pub dem_path: PathBuf,
+    /// The map's parameters (with the DEM's bytes, its cache key).
+    pub params: HorizonParams,
 }
 
 /// How [`HorizonMap::load_or_compute`] got its map.

@@ -515,6 +515,8 @@ fn relief_shadows(s: &ShadowsFile, base: &Path, radius: f64) -> Result<horizon::
         cache,
         cache_file,
         seconds: start.elapsed().as_secs_f64(),
+        dem_path: path,
+        params,
     })
 }
 
