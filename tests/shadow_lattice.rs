@@ -166,7 +166,7 @@ fn lattice_shadow_factor_matches_the_exact_factor() {
         );
         let (mut worst, mut compared, mut partial, mut dark) = (0.0f64, 0usize, 0usize, 0usize);
         for (k, (&a, &b)) in with.iter().zip(without).enumerate() {
-            if !interior[k] || !(b > 0.0) {
+            if !interior[k] || b <= 0.0 {
                 continue;
             }
             let (i, j) = (k % setup.resolution[0], k / setup.resolution[0]);

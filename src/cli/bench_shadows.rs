@@ -112,10 +112,12 @@ pub fn bench_shadows(
                 let interior = stats.stages.interior * 1e3;
                 pair[which] = ms;
                 if which == 0 {
-                    (t_off.push(ms), i_off.push(interior));
+                    t_off.push(ms);
+                    i_off.push(interior);
                     interior_pixels = stats.interior_pixels;
                 } else {
-                    (t_on.push(ms), i_on.push(interior));
+                    t_on.push(ms);
+                    i_on.push(interior);
                 }
             }
             ratios.push(pair[1] / pair[0]);
