@@ -910,6 +910,23 @@ impl PixelRays {
     /// map's variation across the pixel that a single mean times every
     /// point's geometry loses.
     fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
+        // A cast shadow is taken at the pixel centre, as on the lattice:
+        // one exact factor, not one per Gauss point.
+        if frame.shadows.is_none() {
+            return self.unshadowed_pixel_flux(frame, i, j);
+        }
+        let shadow = self.relief_shadow_at(frame, i, j);
+        let smooth = Frame {
+            shadows: None,
+            ..*frame
+        };
+        let (f, points, exact) = self.unshadowed_pixel_flux(&smooth, i, j);
+        (f * shadow, points, exact)
+    }
+
+    /// [`Self::pixel_flux`] of a frame without cast shadows.
+    #[inline]
+    fn unshadowed_pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
         let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
         let Some(s) = self.surface(u, v) else {
             return (0.0, 1, false);
