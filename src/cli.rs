@@ -2,6 +2,7 @@
 
 mod bench;
 pub mod bench_plot;
+mod bench_shadows;
 pub mod calibrate;
 pub mod dataset;
 pub mod expose;
@@ -26,6 +27,7 @@ use optistim::render::{output, Renderer};
 use optistim::scene::Scene;
 
 pub use bench::{bench, BenchSweep};
+pub use bench_shadows::bench_shadows;
 
 /// What `optistim render` writes into its `--out` directory.
 const RENDER_FILES: [&str; 6] = [

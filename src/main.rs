@@ -112,6 +112,13 @@ enum Command {
         /// Replace an earlier `--json` or `--plot` figure.
         #[arg(long)]
         overwrite: bool,
+        /// Time the scene's cast shadows instead of the sweep: each phase
+        /// rendered with them (mode forced to `always`) and without,
+        /// alternating, `--repeats` pairs (median of the pairs' ratios);
+        /// then the horizon map's one-time cost, cold cache and warm. The
+        /// scene's own render settings; `--json` takes this table.
+        #[arg(long)]
+        shadows: bool,
     },
     /// Calibrate the facility's screen: `radiometric` (display LUT),
     /// `flat` (flat field), `geometric` (geometry file), `verify`
@@ -204,6 +211,15 @@ fn main() -> ExitCode {
         Command::Bench {
             scene,
             phases,
+            repeats,
+            json,
+            overwrite,
+            shadows: true,
+            ..
+        } => cli::bench_shadows(&scene, &phases, repeats, json.as_deref(), overwrite),
+        Command::Bench {
+            scene,
+            phases,
             densities,
             interior,
             texture_samples,
@@ -218,6 +234,7 @@ fn main() -> ExitCode {
             plot,
             images,
             overwrite,
+            shadows: false,
         } => cli::bench(
             &scene,
             &cli::BenchSweep {

@@ -1536,3 +1536,66 @@ fn calibration_file_overrides_are_used() {
         assert!(stderr.contains(path), "{flag}: {stderr}");
     }
 }
+
+/// The frame log says per frame whether the relief's cast shadows were
+/// applied and why: `mode = always` and `mode = never` on a body with a
+/// DEM, and no entry on a body without one.
+#[test]
+fn frame_log_records_the_shadow_decision() {
+    let _machine = common::machine::shared();
+    let rig = Rig::new(Facility::default(), 3);
+    // A DEM with one ridge (heights 0 … 3 km), cached in the rig.
+    let (w, h) = (64usize, 32usize);
+    let dem: Vec<f32> = (0..w * h)
+        .map(|k| if k % w == 20 { 3000.0 } else { 0.0 })
+        .collect();
+    optistim::render::output::write_f32_tiff(&rig.path("dem.tiff"), w, h, &dem).unwrap();
+    let plain = common::facility_scene_toml(DVec3::new(0.0, 0.0, -RANGE), DVec3::from_array(SUN));
+    let body_line = "reflectance = { model = \"lambert\", albedo = 0.15 }";
+    assert!(plain.contains(body_line));
+    for (mode, applied) in [("always", true), ("never", false), ("", false)] {
+        let scene = if mode.is_empty() {
+            plain.clone()
+        } else {
+            plain.replace(
+                body_line,
+                &format!(
+                    "{body_line}\nshadows = {{ dem = \"dem.tiff\", scale = 1.0, azimuths = 8, cache_dir = \"cache\", mode = \"{mode}\" }}"
+                ),
+            )
+        };
+        std::fs::write(rig.path("scene.toml"), scene).unwrap();
+        // Each mode logs into its own directory.
+        let rig_mode = Rig {
+            dir: tempfile::tempdir().unwrap(),
+            config: rig.config.clone(),
+            scene: Scene::from_file(&rig.path("scene.toml")).unwrap(),
+        };
+        let plan = rig_mode.plan(StateSource::Replay(rig.trajectory()), None);
+        driver::run(
+            plan,
+            &mut SimDisplay::keep_all(W, H),
+            &mut SimSync::new(),
+            no_stop(),
+        )
+        .unwrap();
+        let records = rig_mode.records();
+        assert_eq!(records.len(), 3, "{mode}");
+        for r in &records {
+            match (mode, &r.shadows) {
+                ("", None) => {}
+                ("", Some(s)) => panic!("no DEM, yet a shadow entry: {s:?}"),
+                (_, None) => panic!("mode {mode}: frame {} has no shadow entry", r.frame),
+                (_, Some(s)) => {
+                    assert_eq!(s.applied, applied, "mode {mode}: {s:?}");
+                    assert_eq!(s.reason, format!("mode = {mode}"), "{s:?}");
+                    // 30° phase: the lowest visible Sun is near the limb.
+                    assert!(
+                        (0.0..90.0).contains(&s.min_sun_elevation_deg) && s.shadow_px >= 0.0,
+                        "{s:?}"
+                    );
+                }
+            }
+        }
+    }
+}

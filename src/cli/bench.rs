@@ -103,7 +103,7 @@ fn write_bench_state(dir: &Path, phase: f64, scene: &Scene) -> Result<()> {
 
 /// Place the camera so that the phase angle at the body is `phase_deg`,
 /// keeping its range and pointing it at the body centre.
-fn at_phase(scene: &mut Scene, phase_deg: f64) {
+pub(crate) fn at_phase(scene: &mut Scene, phase_deg: f64) {
     let st = &mut scene.state;
     let range = (st.camera_position - st.body_position).length();
     let sun_dir = (st.sun_position - st.body_position).normalize();

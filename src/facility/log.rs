@@ -124,6 +124,35 @@ pub struct FrameRecord {
     /// `timing.governor = "off"`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<FrameFidelity>,
+    /// Whether the frame applied the relief's cast shadows, and why (a
+    /// body with `[body] shadows`; absent otherwise or with nothing in
+    /// the field).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shadows: Option<ShadowRecord>,
+}
+
+/// A frame's cast-shadow decision ([`crate::render::relief::ShadowDecision`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShadowRecord {
+    /// Whether the horizon map was applied.
+    pub applied: bool,
+    /// Why: `mode = always`, `mode = never`, `auto: resolved`, …
+    pub reason: String,
+    /// Longest visible shadow on the image [px].
+    pub shadow_px: f64,
+    /// Lowest Sun elevation over the visible lit disk [deg].
+    pub min_sun_elevation_deg: f64,
+}
+
+impl From<crate::render::relief::ShadowDecision> for ShadowRecord {
+    fn from(d: crate::render::relief::ShadowDecision) -> Self {
+        ShadowRecord {
+            applied: d.applied,
+            reason: d.reason.to_string(),
+            shadow_px: d.shadow_px,
+            min_sun_elevation_deg: d.min_sun_elevation_deg,
+        }
+    }
 }
 
 /// A number, or `null` (how serde_json writes a non-finite `f64`) read

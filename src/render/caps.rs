@@ -662,13 +662,20 @@ impl Frame<'_> {
         let Some(shadows) = &self.shadows else {
             return 1.0;
         };
+        shadows.factor(n_body, self.sun_direction_body(n_local, r))
+    }
+
+    /// Body-fixed unit vector to the Sun's centre from the point `r`
+    /// n_local (Lester coordinates).
+    #[inline]
+    pub(super) fn sun_direction_body(&self, n_local: DVec3, r: f64) -> DVec3 {
         let l = if self.distant {
             DVec3::X
         } else {
             (DVec3::new(self.lune.sun_range, 0.0, 0.0) - n_local * r).normalize()
         };
         let [xb, yb, zb] = self.axes_body;
-        shadows.factor(n_body, xb * l.x + yb * l.y + zb * l.z)
+        xb * l.x + yb * l.y + zb * l.z
     }
 
     /// Integrand with displacement and/or normal maps: local radius from the

@@ -29,6 +29,7 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
 use super::caps::{Footprint, Frame, Rect};
+use super::relief::SunAtPoint;
 use crate::scene::EquirectMap;
 
 /// Smallest apparent radius [px] at which interior pixels are worth it.
@@ -204,31 +205,48 @@ impl InteriorMask {
                 // Per-thread scratch, kept between frames: no allocation
                 // in the frame loop once warm.
                 COLUMNS.with_borrow_mut(|columns| {
-                    if let Some(l) = lattice {
-                        l.columns_at_row(j - roi.y0, columns);
-                    }
-                    let mut sum = 0.0;
-                    for (ii, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
-                        let i = roi.x0 + ii;
-                        let interpolated =
-                            lattice.and_then(|l| l.factors_at(columns, ii).map(|q| (l, q)));
-                        let f = match interpolated {
-                            Some((l, q)) => {
-                                let (f, exact) = l.pixel_flux(frame, q);
-                                counts.map_exact += usize::from(exact);
-                                f * rays.relief_shadow_at(frame, i, j)
+                    SUN_COLUMNS.with_borrow_mut(|sun_columns| {
+                        if let Some(l) = lattice {
+                            l.columns_at_row(
+                                &l.nodes,
+                                (FACTORS_X, l.map_width),
+                                j - roi.y0,
+                                columns,
+                            );
+                            if !l.sun_nodes.is_empty() {
+                                l.columns_at_row(
+                                    &l.sun_nodes,
+                                    (SUN_X, l.horizon_width),
+                                    j - roi.y0,
+                                    sun_columns,
+                                );
                             }
-                            None => {
-                                let (f, points, exact) = rays.pixel_flux(frame, i, j);
-                                counts.add(points);
-                                counts.map_exact += usize::from(exact);
-                                f
-                            }
-                        };
-                        row[i] = f as f32;
-                        sum += f;
-                    }
-                    (sum, counts)
+                        }
+                        let mut sum = 0.0;
+                        for (ii, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+                            let i = roi.x0 + ii;
+                            let interpolated = lattice.and_then(|l| {
+                                l.interpolate_at(columns, (FACTORS_X, l.map_width), ii)
+                                    .map(|q| (l, q))
+                            });
+                            let f = match interpolated {
+                                Some((l, q)) => {
+                                    let (f, exact) = l.pixel_flux(frame, q);
+                                    counts.map_exact += usize::from(exact);
+                                    f * l.relief_shadow(frame, rays, sun_columns, (ii, i, j))
+                                }
+                                None => {
+                                    let (f, points, exact) = rays.pixel_flux(frame, i, j);
+                                    counts.add(points);
+                                    counts.map_exact += usize::from(exact);
+                                    f
+                                }
+                            };
+                            row[i] = f as f32;
+                            sum += f;
+                        }
+                        (sum, counts)
+                    })
                 })
             })
             .reduce(
@@ -300,14 +318,30 @@ struct Lattice {
     column_of: Vec<(usize, usize)>,
     /// Map width [texels] (for longitude unwrapping).
     map_width: f64,
+    /// The Sun at each node ([`SunNode`]) when the frame casts relief
+    /// shadows, else empty; `None` near a pole.
+    sun_nodes: Vec<Option<SunNode>>,
+    /// Horizon-map width [cells] (for longitude unwrapping).
+    horizon_width: f64,
 }
 
 /// D, I, and the footprint: texel x, y and axes a1, a2.
 type Factors = [f64; 8];
 
+/// The Sun seen from a node, as [`SunAtPoint`]: horizon-map x, y, sin e,
+/// east and north components. All are smooth in the pixel position away
+/// from the poles (where the nodes are `None`), so a pixel interpolates
+/// them like the [`Factors`] and pays no ray–sphere hit or `atan2` for
+/// its cast-shadow factor; the interpolation's effect on the factor is
+/// bounded in `tests/shadow_lattice.rs`.
+type SunNode = [f64; 5];
+
 thread_local! {
     /// A row's lattice columns ([`Lattice::columns_at_row`]).
     static COLUMNS: std::cell::RefCell<Vec<Option<Factors>>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+    /// A row's lattice columns of [`SunNode`]s.
+    static SUN_COLUMNS: std::cell::RefCell<Vec<Option<SunNode>>> =
         const { std::cell::RefCell::new(Vec::new()) };
 }
 
@@ -344,22 +378,33 @@ fn unwrap(x: f64, reference: f64, width: f64) -> f64 {
     }
 }
 
-/// Σ w_k q_k over four factor sets, the texel x unwrapped to the first.
+/// Σ w_k q_k over four node sets, component `wrap` (a map x) unwrapped
+/// to the first node's where `map_width` > 0.
 #[inline]
-fn combine(q: [&Factors; 4], w: &[f64; 4], map_width: f64) -> Factors {
-    let mut out = [0.0; 8];
+fn combine<const N: usize>(
+    q: [&[f64; N]; 4],
+    w: &[f64; 4],
+    wrap: usize,
+    map_width: f64,
+) -> [f64; N] {
+    let mut out = [0.0; N];
     for (k, o) in out.iter_mut().enumerate() {
         *o = w[0] * q[0][k] + w[1] * q[1][k] + w[2] * q[2][k] + w[3] * q[3][k];
     }
     if map_width > 0.0 {
-        let r = q[0][2];
-        out[2] = w[0] * r
-            + w[1] * unwrap(q[1][2], r, map_width)
-            + w[2] * unwrap(q[2][2], r, map_width)
-            + w[3] * unwrap(q[3][2], r, map_width);
+        let r = q[0][wrap];
+        out[wrap] = w[0] * r
+            + w[1] * unwrap(q[1][wrap], r, map_width)
+            + w[2] * unwrap(q[2][wrap], r, map_width)
+            + w[3] * unwrap(q[3][wrap], r, map_width);
     }
     out
 }
+
+/// Component of [`Factors`] holding the albedo map's texel x.
+const FACTORS_X: usize = 2;
+/// Component of [`SunNode`] holding the horizon map's x.
+const SUN_X: usize = 0;
 
 impl Lattice {
     fn build(&mut self, frame: &Frame, rays: &PixelRays, roi: Rect, step: usize) {
@@ -379,14 +424,15 @@ impl Lattice {
             .extend((0..roi.width()).map(|ii| (ii / step + 1, ii % step)));
         self.nodes.clear();
         self.nodes.resize(self.cols * rows, None);
+        let origin_u = roi.x0 as f64 + 0.5 - step as f64;
+        let origin_v = roi.y0 as f64 + 0.5 - step as f64;
+        self.build_sun_nodes(frame, rays, rows, (origin_u, origin_v));
         // Nodes hold the smooth factors: a cast shadow is not smooth, so
-        // each pixel applies its own (`relief_shadow_at`).
+        // each pixel applies its own (`Lattice::relief_shadow`).
         let frame = &Frame {
             shadows: None,
             ..*frame
         };
-        let origin_u = roi.x0 as f64 + 0.5 - step as f64;
-        let origin_v = roi.y0 as f64 + 0.5 - step as f64;
         self.nodes
             .par_chunks_mut(self.cols)
             .enumerate()
@@ -398,23 +444,62 @@ impl Lattice {
             });
     }
 
+    /// The Sun at every node (`rows` rows, node (0, 0) at pixel position
+    /// `origin`) when the frame casts relief shadows, else none.
+    fn build_sun_nodes(
+        &mut self,
+        frame: &Frame,
+        rays: &PixelRays,
+        rows: usize,
+        (origin_u, origin_v): (f64, f64),
+    ) {
+        self.sun_nodes.clear();
+        let Some(shadows) = &frame.shadows else {
+            return;
+        };
+        self.horizon_width = shadows.map.width() as f64;
+        self.sun_nodes.resize(self.cols * rows, None);
+        let step = self.step as f64;
+        self.sun_nodes
+            .par_chunks_mut(self.cols)
+            .enumerate()
+            .for_each(|(n, row)| {
+                let v = origin_v + n as f64 * step;
+                for (m, node) in row.iter_mut().enumerate() {
+                    *node = rays.sun_node(frame, origin_u + m as f64 * step, v);
+                }
+            });
+    }
+
     /// The nodes of every lattice column interpolated to ROI row `jj`.
-    fn columns_at_row(&self, jj: usize, out: &mut Vec<Option<Factors>>) {
+    fn columns_at_row<const N: usize>(
+        &self,
+        nodes: &[Option<[f64; N]>],
+        (wrap, map_width): (usize, f64),
+        jj: usize,
+        out: &mut Vec<Option<[f64; N]>>,
+    ) {
         let (n, w) = (jj / self.step + 1, &self.weights[jj % self.step]);
         let c = self.cols;
         out.clear();
         out.extend((0..c).map(|m| {
-            let q0 = self.nodes[(n - 1) * c + m].as_ref()?;
-            let q1 = self.nodes[n * c + m].as_ref()?;
-            let q2 = self.nodes[(n + 1) * c + m].as_ref()?;
-            let q3 = self.nodes[(n + 2) * c + m].as_ref()?;
-            Some(combine([q0, q1, q2, q3], w, self.map_width))
+            let q0 = nodes[(n - 1) * c + m].as_ref()?;
+            let q1 = nodes[n * c + m].as_ref()?;
+            let q2 = nodes[(n + 1) * c + m].as_ref()?;
+            let q3 = nodes[(n + 2) * c + m].as_ref()?;
+            Some(combine([q0, q1, q2, q3], w, wrap, map_width))
         }));
     }
 
-    /// The factors at ROI column `ii` of the row whose columns are given.
+    /// The node values at ROI column `ii` of the row whose columns are
+    /// given.
     #[inline]
-    fn factors_at(&self, columns: &[Option<Factors>], ii: usize) -> Option<Factors> {
+    fn interpolate_at<const N: usize>(
+        &self,
+        columns: &[Option<[f64; N]>],
+        (wrap, map_width): (usize, f64),
+        ii: usize,
+    ) -> Option<[f64; N]> {
         let (m, offset) = self.column_of[ii];
         let q = [
             columns[m - 1].as_ref()?,
@@ -422,7 +507,44 @@ impl Lattice {
             columns[m + 1].as_ref()?,
             columns[m + 2].as_ref()?,
         ];
-        Some(combine(q, &self.weights[offset], self.map_width))
+        Some(combine(q, &self.weights[offset], wrap, map_width))
+    }
+
+    /// The relief's cast-shadow factor of pixel (i, j), ROI column `ii`:
+    /// from the interpolated Sun where the row's Sun columns allow, else
+    /// exact at the pixel centre (and in the penumbra).
+    #[inline]
+    fn relief_shadow(
+        &self,
+        frame: &Frame,
+        rays: &PixelRays,
+        sun_columns: &[Option<SunNode>],
+        (ii, i, j): (usize, usize, usize),
+    ) -> f64 {
+        let Some(shadows) = &frame.shadows else {
+            return 1.0;
+        };
+        let Some([x, y, sin_e, east, north]) =
+            self.interpolate_at(sun_columns, (SUN_X, self.horizon_width), ii)
+        else {
+            return rays.relief_shadow_at(frame, i, j);
+        };
+        let f = shadows.factor_at(&SunAtPoint {
+            x,
+            y,
+            sin_e,
+            east,
+            north,
+        });
+        // In the penumbra the factor is steep (≈ 2/(π ρ) per radian): the
+        // exact geometry there. Lit or dark, it is flat within reach of the
+        // interpolation's error (the disk share goes as (1 − |u|)^{3/2} at
+        // its ends), so the interpolated answer stands.
+        if f > 0.0 && f < 1.0 {
+            rays.relief_shadow_at(frame, i, j)
+        } else {
+            f
+        }
     }
 
     /// A pixel's flux from its interpolated factors, and whether the map's
@@ -680,6 +802,20 @@ impl PixelRays {
         integrand * dist * dist / mu * omega
     }
 
+    /// The Sun seen from the surface through pixel position (u, v), as a
+    /// lattice node: None off the sphere or where |cos latitude| is below
+    /// [`NODE_MIN_COS_LAT`] (local east turns fast near a pole).
+    fn sun_node(&self, frame: &Frame, u: f64, v: f64) -> Option<SunNode> {
+        let shadows = frame.shadows.as_ref()?;
+        let s = self.surface(u, v)?;
+        if s.n_body.x.hypot(s.n_body.y) < NODE_MIN_COS_LAT {
+            return None;
+        }
+        let l = frame.sun_direction_body(s.n_local, self.radius);
+        let g = shadows.geometry(s.n_body, l);
+        Some([g.x, g.y, g.sin_e, g.east, g.north])
+    }
+
     /// The relief's cast-shadow factor at the centre of pixel (i, j).
     #[inline]
     fn relief_shadow_at(&self, frame: &Frame, i: usize, j: usize) -> f64 {
@@ -775,6 +911,23 @@ impl PixelRays {
     /// map's variation across the pixel that a single mean times every
     /// point's geometry loses.
     fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
+        // A cast shadow is taken at the pixel centre, as on the lattice:
+        // one exact factor, not one per Gauss point.
+        if frame.shadows.is_none() {
+            return self.unshadowed_pixel_flux(frame, i, j);
+        }
+        let shadow = self.relief_shadow_at(frame, i, j);
+        let smooth = Frame {
+            shadows: None,
+            ..*frame
+        };
+        let (f, points, exact) = self.unshadowed_pixel_flux(&smooth, i, j);
+        (f * shadow, points, exact)
+    }
+
+    /// [`Self::pixel_flux`] of a frame without cast shadows.
+    #[inline]
+    fn unshadowed_pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
         let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);
         let Some(s) = self.surface(u, v) else {
             return (0.0, 1, false);

@@ -49,26 +49,70 @@ impl<'a> FrameShadows<'a> {
         if sin_e <= -self.sin_radius {
             return 0.0;
         }
+        self.factor_at(&self.geometry(n, l))
+    }
+
+    /// The Sun as seen from the point of body-fixed unit normal `n`: map
+    /// coordinates, sin(elevation) and the Sun's local east and north
+    /// components (east arbitrary at a pole).
+    #[inline]
+    pub fn geometry(&self, n: DVec3, l: DVec3) -> SunAtPoint {
         let rxy = n.x.hypot(n.y);
         let lat = n.z.atan2(rxy);
         let lon = n.y.atan2(n.x);
-        // Wholly above every horizon the lookup would read (sin(b + ρ) ≤
-        // sin b + ρ): lit.
-        if sin_e >= self.map.sin_elevation_bound(lat, lon) + self.sun_radius {
-            return 1.0;
-        }
-        // East and north of the sphere at n (east arbitrary at a pole).
+        let (x, y) = self.map.cell_coords(lat, lon);
         let east = if rxy > 1e-12 {
             DVec3::new(-n.y / rxy, n.x / rxy, 0.0)
         } else {
             DVec3::Y
         };
         let north = n.cross(east);
-        let azimuth = l.dot(north).atan2(l.dot(east));
-        let elevation = sin_e.clamp(-1.0, 1.0).asin();
-        self.map
-            .relief_factor(lat, lon, azimuth, elevation, self.sun_radius)
+        SunAtPoint {
+            x,
+            y,
+            sin_e: l.dot(n),
+            east: l.dot(east),
+            north: l.dot(north),
+        }
     }
+
+    /// Lit share for the Sun seen as `g` says: one bound read, and past it
+    /// one horizon lookup. Every path of the factor ends here, so the
+    /// interpolated geometry of the interior lattice
+    /// ([`crate::render::interior`]) differs from the exact one only in `g`.
+    #[inline]
+    pub fn factor_at(&self, g: &SunAtPoint) -> f64 {
+        if g.sin_e >= self.sin_clear {
+            return 1.0;
+        }
+        // Wholly above every horizon the lookup would read (sin(b + ρ) ≤
+        // sin b + ρ): lit.
+        if g.sin_e >= self.map.sin_elevation_bound_at(g.x, g.y) + self.sun_radius {
+            return 1.0;
+        }
+        let azimuth = g.north.atan2(g.east);
+        let elevation = g.sin_e.clamp(-1.0, 1.0).asin();
+        self.map
+            .relief_factor_at(g.x, g.y, azimuth, elevation, self.sun_radius)
+    }
+}
+
+/// The Sun seen from one surface point, in what [`FrameShadows::factor_at`]
+/// needs: smooth in the point away from the poles and the subsolar point,
+/// so it can be interpolated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SunAtPoint {
+    /// Continuous horizon-map column (cell centres at integers; may lie a
+    /// map width outside [0, width): it wraps).
+    pub x: f64,
+    /// Continuous horizon-map row (row 0 at the north edge).
+    pub y: f64,
+    /// sin(Sun elevation) above the sphere's local horizontal.
+    pub sin_e: f64,
+    /// Component of the unit Sun vector along local east.
+    pub east: f64,
+    /// Component of the unit Sun vector along local north.
+    pub north: f64,
 }
 
 /// Which path a frame took for cast shadows, and why (`summary.json`).

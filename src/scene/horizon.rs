@@ -44,8 +44,12 @@ pub struct HorizonMap {
     width: usize,
     height: usize,
     azimuths: usize,
-    /// `[(row · width + col) · azimuths + k]`, row 0 at the north edge.
-    data: Vec<f32>,
+    /// One plane per azimuth, `[(k · height + row) · width + col]`, row 0
+    /// at the north edge: neighbouring pixels of a frame read neighbouring
+    /// values of the same two planes, so a lookup mostly hits cache lines
+    /// the previous one loaded (cell-major, each lookup would load four
+    /// new 64-byte lines of 16 azimuths).
+    planes: Vec<f32>,
     /// Largest value of `data`.
     max: f64,
     /// Per cell: the sine of the largest elevation of the 2 × 2 cells from
@@ -112,6 +116,10 @@ pub struct ReliefShadows {
     pub cache_file: PathBuf,
     /// Wall time [s] of loading or computing the map.
     pub seconds: f64,
+    /// The DEM file the map was made from.
+    pub dem_path: PathBuf,
+    /// The map's parameters (with the DEM's bytes, its cache key).
+    pub params: HorizonParams,
 }
 
 /// How [`HorizonMap::load_or_compute`] got its map.
@@ -142,7 +150,7 @@ impl HorizonMap {
 
     /// Stored elevation [rad] at cell (col, row) and azimuth index k.
     pub fn cell(&self, col: usize, row: usize, k: usize) -> f64 {
-        self.data[(row * self.width + col) * self.azimuths + k] as f64
+        self.planes[(k * self.height + row) * self.width + col] as f64
     }
 
     /// Largest elevation stored [rad].
@@ -150,9 +158,10 @@ impl HorizonMap {
         self.max
     }
 
-    /// All stored values, `[(row · width + col) · azimuths + k]`.
+    /// All stored values, one plane per azimuth:
+    /// `[(k · height + row) · width + col]`.
     pub fn values(&self) -> &[f32] {
-        &self.data
+        &self.planes
     }
 
     /// This map with `overlay` layered over it: the lookup asks the
@@ -182,6 +191,8 @@ impl HorizonMap {
         self
     }
 
+    /// The map of cell-major `data`, `[(row · width + col) · azimuths + k]`
+    /// (as computed and cached).
     pub(crate) fn from_data(
         width: usize,
         height: usize,
@@ -205,11 +216,17 @@ impl HorizonMap {
                 block_max[j * width + i] = ((top as f64).sin() + 1e-6) as f32;
             }
         }
+        let mut planes = vec![0.0f32; data.len()];
+        for (cell, values) in data.chunks_exact(azimuths).enumerate() {
+            for (k, &v) in values.iter().enumerate() {
+                planes[k * width * height + cell] = v;
+            }
+        }
         HorizonMap {
             width,
             height,
             azimuths,
-            data,
+            planes,
             max,
             block_max,
             overlay: None,
@@ -220,9 +237,26 @@ impl HorizonMap {
     /// [rad] in every azimuth: one read.
     #[inline]
     pub fn sin_elevation_bound(&self, lat: f64, lon: f64) -> f64 {
+        let (x, y) = self.cell_coords(lat, lon);
+        self.sin_elevation_bound_at(x, y)
+    }
+
+    /// Continuous (column, row) of latitude/longitude [rad]: cell centres
+    /// at integers, row 0 at the north edge (unclamped, unwrapped).
+    #[inline]
+    pub fn cell_coords(&self, lat: f64, lon: f64) -> (f64, f64) {
+        (
+            (lon + PI) / TAU * self.width as f64 - 0.5,
+            (FRAC_PI_2 - lat) / PI * self.height as f64 - 0.5,
+        )
+    }
+
+    /// [`Self::sin_elevation_bound`] at continuous cell coordinates (x
+    /// wraps, y is clamped).
+    #[inline]
+    pub fn sin_elevation_bound_at(&self, x: f64, y: f64) -> f64 {
         let (w, h) = (self.width, self.height);
-        let x = (lon + PI) / TAU * w as f64 - 0.5;
-        let y = ((FRAC_PI_2 - lat) / PI * h as f64 - 0.5).clamp(0.0, (h - 1) as f64);
+        let y = y.clamp(0.0, (h - 1) as f64);
         let y0 = (y as usize).min(h - 2);
         let i0 = (x.floor() as i64).rem_euclid(w as i64) as usize;
         self.block_max[y0 * w + i0] as f64
@@ -281,18 +315,36 @@ impl HorizonMap {
     /// over this one ([`HorizonOverlay::compose`]).
     #[inline]
     pub fn elevation(&self, lat: f64, lon: f64, azimuth: f64) -> f64 {
+        let (x, y) = self.cell_coords(lat, lon);
+        self.elevation_at(x, y, azimuth)
+    }
+
+    /// [`Self::elevation`] at continuous cell coordinates
+    /// ([`Self::cell_coords`]); an overlay (DEM tiles) is asked first.
+    #[inline]
+    pub fn elevation_at(&self, x: f64, y: f64, azimuth: f64) -> f64 {
         match &self.overlay {
-            None => self.own_elevation(lat, lon, azimuth),
-            Some(o) => o.compose(lat, lon, azimuth, &|| self.own_elevation(lat, lon, azimuth)),
+            None => self.own_elevation_at(x, y, azimuth),
+            Some(o) => {
+                let lon = (x + 0.5) / self.width as f64 * TAU - PI;
+                let lat = FRAC_PI_2 - (y + 0.5) / self.height as f64 * PI;
+                o.compose(lat, lon, azimuth, &|| self.own_elevation_at(x, y, azimuth))
+            }
         }
     }
 
     /// [`Self::elevation`] of this map alone, without the overlay.
     #[inline]
     pub fn own_elevation(&self, lat: f64, lon: f64, azimuth: f64) -> f64 {
+        let (x, y) = self.cell_coords(lat, lon);
+        self.own_elevation_at(x, y, azimuth)
+    }
+
+    /// [`Self::own_elevation`] at continuous cell coordinates.
+    #[inline]
+    fn own_elevation_at(&self, x: f64, y: f64, azimuth: f64) -> f64 {
         let (w, h, n) = (self.width, self.height, self.azimuths);
-        let x = (lon + PI) / TAU * w as f64 - 0.5;
-        let y = ((FRAC_PI_2 - lat) / PI * h as f64 - 0.5).clamp(0.0, (h - 1) as f64);
+        let y = y.clamp(0.0, (h - 1) as f64);
         let y0 = (y as usize).min(h - 2);
         let ty = y - y0 as f64;
         let x0 = x.floor();
@@ -303,9 +355,11 @@ impl HorizonMap {
         let k0 = (a as usize).min(n - 1);
         let ta = a - k0 as f64;
         let k1 = if k0 + 1 == n { 0 } else { k0 + 1 };
+        let (p0, p1) = (k0 * w * h, k1 * w * h);
         let at = |i: usize, j: usize| {
-            let c = &self.data[(j * w + i) * n..][..n];
-            c[k0] as f64 + (c[k1] as f64 - c[k0] as f64) * ta
+            let c = j * w + i;
+            let (v0, v1) = (self.planes[p0 + c] as f64, self.planes[p1 + c] as f64);
+            v0 + (v1 - v0) * ta
         };
         let top = at(i0, y0) + (at(i1, y0) - at(i0, y0)) * tx;
         let bottom = at(i0, y0 + 1) + (at(i1, y0 + 1) - at(i0, y0 + 1)) * tx;
@@ -328,7 +382,22 @@ impl HorizonMap {
         sun_elevation: f64,
         sun_radius: f64,
     ) -> f64 {
-        let horizon = self.elevation(lat, lon, azimuth);
+        let (x, y) = self.cell_coords(lat, lon);
+        self.relief_factor_at(x, y, azimuth, sun_elevation, sun_radius)
+    }
+
+    /// [`Self::relief_factor`] at continuous cell coordinates
+    /// ([`Self::cell_coords`]).
+    #[inline]
+    pub fn relief_factor_at(
+        &self,
+        x: f64,
+        y: f64,
+        azimuth: f64,
+        sun_elevation: f64,
+        sun_radius: f64,
+    ) -> f64 {
+        let horizon = self.elevation_at(x, y, azimuth);
         if horizon <= 0.0 {
             return 1.0;
         }
@@ -671,9 +740,12 @@ pub(crate) fn read_cache(
 pub(crate) fn write_cache(file: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
     let dir = file.parent().unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let mut payload = Vec::with_capacity(4 * map.data.len());
-    for v in &map.data {
-        payload.extend_from_slice(&v.to_le_bytes());
+    let cells = map.width * map.height;
+    let mut payload = Vec::with_capacity(4 * map.planes.len());
+    for cell in 0..cells {
+        for k in 0..map.azimuths {
+            payload.extend_from_slice(&map.planes[k * cells + cell].to_le_bytes());
+        }
     }
     let mut out = Vec::with_capacity(payload.len() + 84);
     out.extend_from_slice(MAGIC);

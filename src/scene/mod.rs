@@ -636,6 +636,8 @@ fn relief_shadows(
         cache,
         cache_file,
         seconds: start.elapsed().as_secs_f64(),
+        dem_path: path,
+        params,
     };
     Ok((shadows, dem))
 }

@@ -197,6 +197,7 @@ impl<D: Display, S: SyncPort + ?Sized> Presenter<'_, D, S> {
             render_over_lime: job.render_over_lime,
             radiometric_u_k2_percent: job.radiometric_u_k2_percent,
             fidelity: job.fidelity,
+            shadows: job.shadows.map(Into::into),
         }
     }
 }

@@ -44,6 +44,8 @@ pub(super) struct Job {
     pub fidelity: Option<FrameFidelity>,
     /// The state put the body entirely out of the field: why.
     pub out_of_field: Option<String>,
+    /// The render's cast-shadow decision (a body with shadows).
+    pub shadows: Option<crate::render::relief::ShadowDecision>,
 }
 
 /// Shared by the two threads for late latching: the next free slot with
@@ -240,6 +242,7 @@ impl RenderThread {
                 .map(|c| c.describe());
             let roi = shown.and_then(|st| self.models[rung].render(&self.scene, &st));
             let render_end = Instant::now();
+            let shadows = roi.and(self.models[rung].shadows());
             // Nothing of the body shown: nothing to compare with LIME.
             let render_over_lime = shown
                 .filter(|_| out_of_field.is_none())
@@ -278,6 +281,7 @@ impl RenderThread {
                 radiometric_u_k2_percent,
                 fidelity,
                 out_of_field,
+                shadows,
             };
             if self.ready.send(job).is_err() {
                 break;

@@ -45,6 +45,8 @@ pub struct ScreenModel {
     /// Camera-effective disk irradiance of the last render, over all caps
     /// [W m⁻²].
     effective_all_caps: f64,
+    /// The last render's cast-shadow decision (its first band's).
+    shadows: Option<crate::render::relief::ShadowDecision>,
     /// The screen ROI of the last render.
     last_roi: Option<Roi>,
 }
@@ -246,6 +248,7 @@ impl ScreenModel {
                 .then(|| lime_camera_band(scene))
                 .flatten(),
             effective_all_caps: 0.0,
+            shadows: None,
             last_roi: None,
         }
     }
@@ -335,6 +338,7 @@ impl ScreenModel {
         let mut roi = None;
         self.accumulated.clear();
         self.effective_all_caps = 0.0;
+        self.shadows = None;
         for (i, b) in self.bands.iter().enumerate() {
             let band = BandModel {
                 model: Some(&b.model),
@@ -345,6 +349,7 @@ impl ScreenModel {
                 .renderer
                 .render_flux_band(&scene.body, st, &self.settings, &band);
             let r = *roi.get_or_insert(stats.roi);
+            self.shadows = self.shadows.or(stats.shadows);
             self.effective_all_caps += b.weight * stats.total_flux;
             if self.bands.len() == 1 {
                 break;
@@ -371,6 +376,13 @@ impl ScreenModel {
         let lime = Lime::embedded().disk_irradiance(band, &geometry);
         let ratio = self.effective_all_caps / lime;
         (lime > 0.0 && ratio.is_finite()).then_some(ratio)
+    }
+
+    /// The last [`render`](Self::render)'s cast-shadow decision, for a body
+    /// with `[body] shadows` (None otherwise, or when nothing was
+    /// rendered).
+    pub fn shadows(&self) -> Option<crate::render::relief::ShadowDecision> {
+        self.shadows
     }
 
     /// Screen radiance of the last [`render`](Self::render), row-major over
