@@ -86,7 +86,8 @@ pub fn render(
         .with_context(|| format!("writing {}", out.display()))?;
     if labels {
         let epoch = optistim::scene::epoch_text(scene_path)?;
-        let l = optistim::labels::compute(pin, &scene.state, scene.body.radius, epoch);
+        let mut l = optistim::labels::compute(pin, &scene.state, scene.body.radius, epoch);
+        optistim::labels::add_stars(&mut l, &scene);
         optistim::labels::files::write(out, &l, "dn.png")
             .with_context(|| format!("writing labels into {}", out.display()))?;
     }

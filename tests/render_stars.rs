@@ -623,3 +623,40 @@ proptest! {
         }
     }
 }
+
+/// `labels.json`'s star list: every bundled star to V 7.5 whose direction
+/// falls in the image, with its HIP number and position, against the
+/// catalogue read and projected here; none other.
+#[test]
+fn the_labels_list_the_stars_in_the_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let shot = orion_shot();
+    let scene = shot.scene(dir.path());
+    let mut labels =
+        optistim::labels::compute(&scene.camera.pinhole, &scene.state, scene.body.radius, None);
+    optistim::labels::add_stars(&mut labels, &scene);
+    let n = FIELD_SIZE as f64;
+    let want: Vec<(i64, f64, f64)> = bundled_at(FIELD_YEAR)
+        .iter()
+        .filter(|s| s.3 <= 7.5)
+        .filter_map(|&(id, ra, dec, _)| project(shot.q, ra, dec).map(|(u, v)| (id, u, v)))
+        .filter(|&(_, u, v)| u > 0.0 && v > 0.0 && u < n && v < n)
+        .collect();
+    let got = &labels.frame.stars;
+    let mut worst = 0.0f64;
+    for &(id, u, v) in &want {
+        let s = got
+            .iter()
+            .find(|s| s.id as i64 == id)
+            .unwrap_or_else(|| panic!("HIP {id} at ({u:.1}, {v:.1}) not labelled"));
+        worst = worst.max((s.u - u).hypot(s.v - v));
+        assert!(!s.occulted && s.electron_rate > 0.0);
+    }
+    println!(
+        "{} stars labelled, {} expected, worst position {worst:.2e} px",
+        got.len(),
+        want.len()
+    );
+    assert_eq!(got.len(), want.len());
+    assert!(worst < 0.01, "{worst} px");
+}

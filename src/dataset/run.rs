@@ -165,9 +165,10 @@ impl Worker {
             labels::files::write_json(&dir.join("render.json"), &summary)?;
         }
         if spec.outputs.labels {
-            let l = self.pool.install(|| {
+            let mut l = self.pool.install(|| {
                 labels::compute(&pin, &item.state, scene.body.radius, spec.epoch.clone())
             });
+            labels::add_stars(&mut l, &scene);
             let image = if spec.outputs.image { "dn.png" } else { "" };
             labels::files::write(dir, &l, image)?;
         }

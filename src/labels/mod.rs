@@ -123,6 +123,20 @@ pub struct FrameLabels {
     pub disk: Disk,
     /// Pixels in the body, lit and shadow masks.
     pub pixel_counts: PixelCounts,
+    /// The catalogue stars whose direction falls in the image (`[stars]`;
+    /// [`add_stars`]), drawn or hidden by the body.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub stars: Vec<crate::stars::ProjectedStar>,
+}
+
+/// Adds to `labels` the stars of `scene` (if it has `[stars]`) whose
+/// direction falls in the image: catalogue id, position [px], V, electron
+/// rate and whether the body hides them; the same projection the render
+/// draws them with.
+pub fn add_stars(labels: &mut Labels, scene: &crate::scene::Scene) {
+    if let Some(field) = &scene.stars {
+        labels.frame.stars = crate::stars::project(field, scene, 0.0);
+    }
 }
 
 /// Counts of set pixels per mask.
@@ -171,6 +185,7 @@ pub fn compute(camera: &Pinhole, state: &State, radius: f64, epoch: Option<Strin
         phase_angle_rad: to_sun.angle_between(to_cam),
         disk,
         pixel_counts,
+        stars: Vec::new(),
     };
     Labels { images, frame }
 }

@@ -157,7 +157,7 @@ fn resolve(base: &Path, path: &str) -> PathBuf {
 }
 
 /// A catalogue star as the camera sees it.
-#[derive(Clone, Copy, Debug, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct ProjectedStar {
     pub id: u64,
     /// Continuous pixel position of its direction [px].
