@@ -3,6 +3,8 @@
 //! shadowed classification against a brute-force ray march through the
 //! DEM's height field, for 8 and 16 azimuths and grazing Suns.
 
+mod common;
+
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
 use glam::DVec3;
@@ -126,23 +128,7 @@ fn on_axis(x: f64) -> DVec3 {
 /// The westmost x in (−a, a) where `f` turns positive (shadow), scanned
 /// in steps of 1/20 cell from the west rim, then bisected.
 fn crossing(f: impl Fn(f64) -> f64) -> f64 {
-    let step = cell() / 20.0;
-    let mut lo = -A * 0.999;
-    assert!(f(lo) < 0.0, "shadowed at the west rim");
-    while f(lo + step) < 0.0 {
-        lo += step;
-        assert!(lo < A, "no shadow");
-    }
-    let mut hi = lo + step;
-    for _ in 0..50 {
-        let mid = 0.5 * (lo + hi);
-        if f(mid) < 0.0 {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    0.5 * (lo + hi)
+    common::first_crossing(f, A, cell() / 20.0)
 }
 
 /// Along the crater's east–west axis with the Sun in the east, the shadow

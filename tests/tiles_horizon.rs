@@ -4,6 +4,8 @@
 //! the global map's value is returned unchanged; and a tile that is only a
 //! resampling of the global DEM changes the horizon by little.
 
+mod common;
+
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use std::sync::Arc;
 
@@ -138,25 +140,9 @@ fn on_axis(c: DVec3, x: f64) -> DVec3 {
 }
 
 /// The westmost x in (−a, a) where `f` turns positive (shadow), scanned
-/// in steps of 1/20 tile cell from the west rim, then bisected.
+/// in steps of 1/20 cell from the west rim, then bisected.
 fn crossing(f: impl Fn(f64) -> f64) -> f64 {
-    let step = tile_cell() / 20.0;
-    let mut lo = -A * 0.999;
-    assert!(f(lo) < 0.0, "shadowed at the west rim");
-    while f(lo + step) < 0.0 {
-        lo += step;
-        assert!(lo < A, "no shadow");
-    }
-    let mut hi = lo + step;
-    for _ in 0..50 {
-        let mid = 0.5 * (lo + hi);
-        if f(mid) < 0.0 {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    0.5 * (lo + hi)
+    common::first_crossing(f, A, tile_cell() / 20.0)
 }
 
 /// Local elevation and azimuth of the (distant) Sun direction s at p.

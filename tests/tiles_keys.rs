@@ -157,17 +157,7 @@ fn each_bad_tile_or_key_is_one_line_naming_it() {
             None,
         ),
     ];
-    for (text, needle, file) in cases {
-        let e = match scene_with(&text) {
-            Ok(_) => panic!("accepted: {text}"),
-            Err(e) => e,
-        };
-        assert!(!e.contains('\n'), "not one line: {e}");
-        assert!(e.contains(needle), "{e} does not name {needle}");
-        if let Some(f) = file {
-            assert!(e.contains(f), "{e} does not name the file {f}");
-        }
-    }
+    common::assert_one_line_errors(cases, scene_with);
 }
 
 proptest! {

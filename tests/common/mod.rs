@@ -395,3 +395,44 @@ pub fn file_tree(dir: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
     }
     out
 }
+
+/// The westmost x in (−a, a) where `f` turns positive (a shadow's edge
+/// along a crater's axis), scanned in steps of `step` from −0.999 a, then
+/// bisected 50 times.
+pub fn first_crossing(f: impl Fn(f64) -> f64, a: f64, step: f64) -> f64 {
+    let mut lo = -a * 0.999;
+    assert!(f(lo) < 0.0, "shadowed at the west rim");
+    while f(lo + step) < 0.0 {
+        lo += step;
+        assert!(lo < a, "no shadow");
+    }
+    let mut hi = lo + step;
+    for _ in 0..50 {
+        let mid = 0.5 * (lo + hi);
+        if f(mid) < 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Every case (scene text, a key the error must name, a file it must
+/// name) is refused by `load` with a one-line error.
+pub fn assert_one_line_errors<'a, T>(
+    cases: impl IntoIterator<Item = (String, &'a str, Option<&'a str>)>,
+    load: impl Fn(&str) -> Result<T, String>,
+) {
+    for (text, needle, file) in cases {
+        let e = match load(&text) {
+            Ok(_) => panic!("accepted: {text}"),
+            Err(e) => e,
+        };
+        assert!(!e.contains('\n'), "not one line: {e}");
+        assert!(e.contains(needle), "{e} does not name {needle}");
+        if let Some(f) = file {
+            assert!(e.contains(f), "{e} does not name the file {f}");
+        }
+    }
+}
