@@ -103,17 +103,7 @@ fn rim_horizon(p: DVec3, az: f64) -> f64 {
     let (east, north) = east_north(p);
     let dir = east * az.cos() + north * az.sin();
     let c = crater_centre();
-    let at = |g: f64| p * g.cos() + dir * g.sin();
-    let (mut lo, mut hi) = (0.0, 2.0 * A / R);
-    for _ in 0..80 {
-        let mid = 0.5 * (lo + hi);
-        if R * at(mid).dot(c).clamp(-1.0, 1.0).acos() < A {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let rim = at(0.5 * (lo + hi)) * R;
+    let rim = common::crater_exit(p, dir, c, A, R);
     let v = rim - p * (R + surface(p));
     (v.dot(p) / v.length()).asin()
 }

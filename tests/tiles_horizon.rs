@@ -118,17 +118,7 @@ fn tile_cell() -> f64 {
 fn rim_horizon(c: DVec3, p: DVec3, az: f64) -> f64 {
     let (east, north) = east_north(p);
     let dir = east * az.cos() + north * az.sin();
-    let at = |g: f64| p * g.cos() + dir * g.sin();
-    let (mut lo, mut hi) = (0.0, 2.0 * A / R);
-    for _ in 0..80 {
-        let mid = 0.5 * (lo + hi);
-        if R * at(mid).dot(c).clamp(-1.0, 1.0).acos() < A {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let rim = at(0.5 * (lo + hi)) * R;
+    let rim = common::crater_exit(p, dir, c, A, R);
     let v = rim - p * (R + bowl(c, p));
     (v.dot(p) / v.length()).asin()
 }

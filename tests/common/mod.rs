@@ -436,3 +436,21 @@ pub fn assert_one_line_errors<'a, T>(
         }
     }
 }
+
+/// Where the great circle from unit vector `p` toward unit tangent `dir`
+/// leaves a circular crater of radius `a` [m] centred on unit vector
+/// `centre`, on a sphere of radius `r` [m] (bisection to 80 halvings):
+/// the rim point, scaled to `r`.
+pub fn crater_exit(p: DVec3, dir: DVec3, centre: DVec3, a: f64, r: f64) -> DVec3 {
+    let at = |g: f64| p * g.cos() + dir * g.sin();
+    let (mut lo, mut hi) = (0.0, 2.0 * a / r);
+    for _ in 0..80 {
+        let mid = 0.5 * (lo + hi);
+        if r * at(mid).dot(centre).clamp(-1.0, 1.0).acos() < a {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    at(0.5 * (lo + hi)) * r
+}
