@@ -137,7 +137,8 @@ fn plan_settings(
         .plan(target, source)
         .with_context(|| format!("{}", scene_path.display()))?;
     tracing::info!(
-        "planned for interior p99 <= {target:e}: {} (measured {:.2e}, flux {:.1e}; planning {:.0} ms)",
+        "planned for {} p99 <= {target:e}: {} (measured {:.2e}, flux {:.1e}; planning {:.0} ms)",
+        plan.judged,
         plan.label,
         plan.predicted_pixel_error,
         plan.predicted_flux_error,
