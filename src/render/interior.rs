@@ -54,6 +54,10 @@ pub struct InteriorMask {
     eroded_rows: Vec<bool>,
     count: usize,
     lattice: Lattice,
+    /// Centre shadow factors, for the shadow-edge pass.
+    centre_factors: super::shadow_edges::CentreFactors,
+    /// Shadow-edge pixels re-evaluated in the last frame.
+    shadow_edges: usize,
 }
 
 impl InteriorMask {
@@ -192,11 +196,21 @@ impl InteriorMask {
             &self.lattice
         });
         let interior = &self.interior;
-        flux.par_chunks_mut(width)
+        let shadows = frame.shadows.is_some();
+        self.centre_factors
+            .reset(if shadows { roi } else { Rect::default() });
+        let centre_rows: Vec<&mut [f32]> = if shadows {
+            self.centre_factors.factors.chunks_mut(w).collect()
+        } else {
+            (0..roi.height()).map(|_| <&mut [f32]>::default()).collect()
+        };
+        let (sum, counts) = flux
+            .par_chunks_mut(width)
             .enumerate()
             .skip(roi.y0)
             .take(roi.height())
-            .map(|(j, row)| {
+            .zip(centre_rows)
+            .map(|((j, row), centre)| {
                 let mask = &interior[(j - roi.y0) * w..(j - roi.y0 + 1) * w];
                 let mut counts = DirectCounts::default();
                 if !mask.iter().any(|&m| m) {
@@ -229,19 +243,23 @@ impl InteriorMask {
                                 l.interpolate_at(columns, (FACTORS_X, l.map_width), ii)
                                     .map(|q| (l, q))
                             });
-                            let f = match interpolated {
+                            let (f, shadow) = match interpolated {
                                 Some((l, q)) => {
                                     let (f, exact) = l.pixel_flux(frame, q);
                                     counts.map_exact += usize::from(exact);
-                                    f * l.relief_shadow(frame, rays, sun_columns, (ii, i, j))
+                                    let s = l.relief_shadow(frame, rays, sun_columns, (ii, i, j));
+                                    (f * s, s)
                                 }
                                 None => {
-                                    let (f, points, exact) = rays.pixel_flux(frame, i, j);
+                                    let (f, points, exact, s) = rays.pixel_flux(frame, i, j);
                                     counts.add(points);
                                     counts.map_exact += usize::from(exact);
-                                    f
+                                    (f, s)
                                 }
                             };
+                            if let Some(c) = centre.get_mut(ii) {
+                                *c = shadow as f32;
+                            }
                             row[i] = f as f32;
                             sum += f;
                         }
@@ -252,7 +270,38 @@ impl InteriorMask {
             .reduce(
                 || (0.0, DirectCounts::default()),
                 |(a, ca), (b, cb)| (a + b, ca.merged(cb)),
-            )
+            );
+        self.shadow_edges = 0;
+        if !shadows {
+            return (sum, counts);
+        }
+        let (delta, edges) =
+            super::shadow_edges::refine(frame, rays, &self.centre_factors, flux, width);
+        self.shadow_edges = edges;
+        (sum + delta, counts)
+    }
+
+    /// Shadow-edge pixels re-evaluated over their preimage in the last
+    /// frame ([`super::shadow_edges`]).
+    pub fn shadow_edges(&self) -> usize {
+        self.shadow_edges
+    }
+}
+
+impl super::shadow_edges::PixelShadow for PixelRays {
+    fn shadow_at(&self, frame: &Frame, u: f64, v: f64) -> f64 {
+        match self.surface(u, v) {
+            Some(s) => frame.relief_shadow(s.n_local, s.n_body, self.radius),
+            None => 0.0,
+        }
+    }
+
+    fn unshadowed(&self, frame: &Frame, i: usize, j: usize) -> f64 {
+        let smooth = Frame {
+            shadows: None,
+            ..*frame
+        };
+        self.unshadowed_pixel_flux(&smooth, i, j).0
     }
 }
 
@@ -910,11 +959,14 @@ impl PixelRays {
     /// point's own footprint: the product rule per cell, which keeps the
     /// map's variation across the pixel that a single mean times every
     /// point's geometry loses.
-    fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
+    /// Also returns the cast-shadow factor at the centre.
+    fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool, f64) {
         // A cast shadow is taken at the pixel centre, as on the lattice:
-        // one exact factor, not one per Gauss point.
+        // one exact factor, not one per Gauss point (edge pixels are
+        // averaged afterwards, `super::shadow_edges`).
         if frame.shadows.is_none() {
-            return self.unshadowed_pixel_flux(frame, i, j);
+            let (f, points, exact) = self.unshadowed_pixel_flux(frame, i, j);
+            return (f, points, exact, 1.0);
         }
         let shadow = self.relief_shadow_at(frame, i, j);
         let smooth = Frame {
@@ -922,7 +974,7 @@ impl PixelRays {
             ..*frame
         };
         let (f, points, exact) = self.unshadowed_pixel_flux(&smooth, i, j);
-        (f * shadow, points, exact)
+        (f * shadow, points, exact, shadow)
     }
 
     /// [`Self::pixel_flux`] of a frame without cast shadows.

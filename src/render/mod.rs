@@ -21,6 +21,7 @@ pub mod interior;
 pub mod lune;
 pub mod output;
 pub mod relief;
+pub mod shadow_edges;
 
 use std::time::Instant;
 
