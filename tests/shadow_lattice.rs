@@ -89,7 +89,8 @@ fn pixel_factor(
         (i.saturating_sub(1)..=(i + 1).min(width - 1))
             .any(|ii| centre[jj * width + ii].is_some_and(|n| (n - s).abs() > 1e-6))
     });
-    if !(s > 0.0 && s < 1.0) && !neighbour_differs {
+    let penumbra = s > 0.0 && s < 1.0;
+    if !penumbra && !neighbour_differs {
         return s;
     }
     let n = EDGE_POINTS;
