@@ -445,6 +445,10 @@ fn combine<const N: usize>(
 const FACTORS_X: usize = 2;
 /// Component of [`SunNode`] holding the horizon map's x.
 const SUN_X: usize = 0;
+/// Component of [`SunNode`] holding sin(Sun elevation).
+const SUN_SIN_E: usize = 2;
+/// Component of [`PolarNode`] holding sin(Sun elevation).
+const POLAR_SIN_E: usize = polar_sun::SIN_E;
 
 impl Lattice {
     fn build(&mut self, frame: &Frame, rays: &PixelRays, roi: Rect, step: usize) {
@@ -577,6 +581,22 @@ impl Lattice {
         Some(combine(q, &self.weights[offset], wrap, map_width))
     }
 
+    /// Component `k` alone of [`Self::interpolate_at`] (not one that
+    /// wraps), in the same arithmetic.
+    #[inline]
+    fn interpolate_one<const N: usize>(
+        &self,
+        columns: &[Option<[f64; N]>],
+        ii: usize,
+        k: usize,
+    ) -> Option<f64> {
+        let (m, offset) = self.column_of[ii];
+        let w = &self.weights[offset];
+        let (a, b) = (columns[m - 1].as_ref()?[k], columns[m].as_ref()?[k]);
+        let (c, d) = (columns[m + 1].as_ref()?[k], columns[m + 2].as_ref()?[k]);
+        Some(w[0] * a + w[1] * b + w[2] * c + w[3] * d)
+    }
+
     /// The relief's cast-shadow factor of pixel (i, j), ROI column `ii`:
     /// from the interpolated Sun where the row's Sun columns allow
     /// (equatorial nodes, else polar ones), else exact at the pixel centre
@@ -593,9 +613,17 @@ impl Lattice {
         let Some(shadows) = &frame.shadows else {
             return 1.0;
         };
-        let f = if let Some([x, y, sin_e, east, north]) =
-            self.interpolate_at(&sun.equatorial, (SUN_X, self.horizon_width), ii)
-        {
+        // A Sun above every horizon needs only its elevation (most pixels
+        // of a frame away from the terminator): interpolated alone first.
+        let equatorial_sin_e = self.interpolate_one(&sun.equatorial, ii, SUN_SIN_E);
+        let polar_sin_e = || self.interpolate_one(&sun.polar, ii, POLAR_SIN_E);
+        let f = if let Some(sin_e) = equatorial_sin_e {
+            if shadows.is_clear(sin_e) {
+                return 1.0;
+            }
+            let [x, y, sin_e, east, north] = self
+                .interpolate_at(&sun.equatorial, (SUN_X, self.horizon_width), ii)
+                .expect("every node of the stencil is there");
             shadows.factor_at(&SunAtPoint {
                 x,
                 y,
@@ -603,11 +631,14 @@ impl Lattice {
                 east,
                 north,
             })
-        } else if let Some(q) = self.interpolate_at(&sun.polar, (0, 0.0), ii) {
+        } else if let Some(sin_e) = polar_sin_e() {
             counts.shadow_polar += 1;
-            if shadows.is_clear(q[3]) {
+            if shadows.is_clear(sin_e) {
                 return 1.0;
             }
+            let q = self
+                .interpolate_at(&sun.polar, (0, 0.0), ii)
+                .expect("every node of the stencil is there");
             shadows.factor_at(&polar_sun::sun_at(shadows.map, &q, self.cap))
         } else {
             counts.shadow_exact += 1;

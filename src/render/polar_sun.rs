@@ -25,6 +25,9 @@ use crate::scene::horizon::HorizonMap;
 /// sin(elevation), and the (east, north) components rotated by s·longitude.
 pub(super) type PolarNode = [f64; 6];
 
+/// Component of [`PolarNode`] holding sin(Sun elevation).
+pub(super) const SIN_E: usize = 3;
+
 /// Nodes whose |sin latitude| is below this take the equatorial lattice
 /// (or none): 0.9 is 64° of latitude, where 1/cos latitude is 2.3, so the
 /// two lattices overlap (the equatorial one stops at |cos lat| = 0.3).
