@@ -20,6 +20,7 @@ pub mod field;
 pub mod interior;
 pub mod lune;
 pub mod output;
+mod polar_sun;
 pub mod relief;
 pub mod shadow_edges;
 

@@ -38,6 +38,13 @@ impl<'a> FrameShadows<'a> {
         }
     }
 
+    /// Whether a point whose Sun stands at sin(elevation) `sin_e` is
+    /// wholly lit wherever it is (above the highest horizon).
+    #[inline]
+    pub fn is_clear(&self, sin_e: f64) -> bool {
+        sin_e >= self.sin_clear
+    }
+
     /// Lit share at the point of body-fixed unit direction `n` (the
     /// sphere's normal), the Sun along body-fixed unit vector `l` from it.
     #[inline]
