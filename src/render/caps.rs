@@ -412,6 +412,7 @@ impl Frame<'_> {
         let base = zc * (ct * self.radius) - self.camera_cam;
         let (xs, ys) = (xc * (st * self.radius), yc * (st * self.radius));
         let height = self.height.map(|h| &h.0);
+        let tiles = self.body.relief.height_tiles.as_deref();
         let [xb, yb, zb] = self.axes_body;
         for _ in 0..=n {
             let mut p = base + xs * cp + ys * sp;
@@ -419,7 +420,8 @@ impl Frame<'_> {
                 // The corner on the displaced surface: the limb moves with
                 // the relief (`scene::surface`).
                 let n_body = xb * (st * cp) + yb * (st * sp) + zb * ct;
-                let r = crate::scene::surface::displaced_radius(h, self.radius, n_body);
+                let r =
+                    crate::scene::surface::displaced_radius_tiled(h, tiles, self.radius, n_body);
                 p = (p + self.camera_cam) * (r / self.radius) - self.camera_cam;
             }
             out.pos.push(if p.z > 0.0 {
@@ -693,7 +695,12 @@ impl Frame<'_> {
         albedo: f64,
     ) -> f64 {
         let (r, geometric) = match self.height {
-            Some(h) => crate::scene::surface::displaced(h, radius, n_body),
+            Some(h) => crate::scene::surface::displaced_tiled(
+                h,
+                self.body.relief.height_tiles.as_deref(),
+                radius,
+                n_body,
+            ),
             None => (radius, n_body),
         };
         let shading = match &self.body.relief.normals {
