@@ -731,11 +731,29 @@ impl Frame<'_> {
         if projected <= 0.0 {
             return 0.0;
         }
+        let hidden = self.camera_visible(n_body, cam);
+        if hidden == 0.0 {
+            return 0.0;
+        }
         let area_scale = (r / radius) * (r / radius);
         self.reflect(model, &g, albedo, n_body) * (AU * AU / sun_sq) * projected * area_scale
             / cam_sq
             * self.sun_fraction(p)
             * self.relief_shadow(n_local, n_body, r)
+    }
+
+    /// 0 where nearer relief hides the point of body-fixed direction
+    /// `n_body` from the camera (`cam`: the point to the camera, Lester
+    /// coordinates), else 1. Only with both the horizon map and the
+    /// displacement: the flat sphere's points are hidden by nothing.
+    #[inline]
+    fn camera_visible(&self, n_body: DVec3, cam: DVec3) -> f64 {
+        let (Some(shadows), Some(_)) = (&self.shadows, self.height) else {
+            return 1.0;
+        };
+        let [xb, yb, zb] = self.axes_body;
+        let v = (xb * cam.x + yb * cam.y + zb * cam.z).normalize();
+        shadows.camera_visible(n_body, v)
     }
 }
 
