@@ -1370,8 +1370,11 @@ pub const MAX_IMAGE_BYTES: f64 = 2.0 * 1024.0 * 1024.0 * 1024.0;
 pub const IMAGE_BYTES_PER_PIXEL: f64 = 48.0;
 
 /// Bytes per camera pixel of a lens's tables (`optics::distortion::Resampler`):
-/// corner positions (24), centre direction (12) and solid angle (4).
-pub const LENS_BYTES_PER_PIXEL: f64 = 40.0;
+/// corner positions (24), centre direction (24), solid angle (4) and the
+/// resampling's weight table once every band is built (68: 8.0 terms of
+/// 8 bytes per pixel and a 4-byte row start, measured for
+/// configs/bench_lens_intrinsics.toml at 4 × 4 samples).
+pub const LENS_BYTES_PER_PIXEL: f64 = 120.0;
 
 /// `camera.resolution` bounded by the memory its images imply, before
 /// anything is allocated.
