@@ -87,6 +87,22 @@ impl Lens {
         }
     }
 
+    /// The pixel (centres at +0.5) where the camera sees camera-frame
+    /// direction `d` through the lens (OpenCV's distortion); None behind
+    /// the camera or beyond the field the ideal grid covers, where the
+    /// polynomial is not the lens (it can fold back into the image).
+    pub fn project(&self, d: DVec3) -> Option<(f64, f64)> {
+        if !(d.z > 0.0) {
+            return None;
+        }
+        let (x, y) = self.ideal.project(d);
+        let inside = (0.0..=self.ideal.width as f64).contains(&x)
+            && (0.0..=self.ideal.height as f64).contains(&y);
+        inside
+            .then(|| self.intrinsics.direction_to_pixel(d))
+            .flatten()
+    }
+
     /// The lens's resampling tables, built once per process for the two
     /// most recent lenses.
     pub fn resampler(&self) -> Result<Arc<Resampler>> {
