@@ -1301,7 +1301,9 @@ fn lens_from(
         };
     };
     let file = resolve(base, path);
-    let k = crate::instruments::intrinsics::CameraIntrinsics::load(&file)?;
+    // The file's own errors name it and its key; this names the scene's.
+    let k = crate::instruments::intrinsics::CameraIntrinsics::load(&file)
+        .map_err(|e| Error::invalid("camera.distortion", e.to_string()))?;
     let named = |e: Error| Error::invalid("camera.distortion", format!("{}: {e}", file.display()));
     if [k.width, k.height] != c.resolution {
         return Err(named(Error::Other(format!(
