@@ -472,7 +472,7 @@ mod tests {
                 assert!(direct.iter().any(|&v| v != 0.0));
             }
             let mean = resampler.table.len() as f64 / (70.0 * 45.0);
-            assert!(mean <= 9.0 && mean >= 1.0, "{mean} terms per pixel");
+            assert!((1.0..=9.0).contains(&mean), "{mean} terms per pixel");
         }
     }
 
