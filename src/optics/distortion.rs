@@ -495,6 +495,31 @@ mod tests {
         }
     }
 
+    /// Beyond the field the barrel polynomial folds back: x = 1.75 maps
+    /// to 1.75 · (1 − 0.3 · 1.75²) = 0.142, inside the image, but the lens
+    /// does not see it there; inside the field `project` is OpenCV's.
+    #[test]
+    fn project_refuses_the_folded_polynomial_beyond_the_field() {
+        let k = CameraIntrinsics {
+            width: 64,
+            height: 48,
+            camera_matrix: [[100.0, 0.0, 31.5], [0.0, 100.0, 23.5], [0.0, 0.0, 1.0]],
+            distortion: [-0.3, 0.0, 0.0, 0.0, 0.0],
+        };
+        let lens = Lens::new(k.clone(), 2).unwrap();
+        let far = DVec3::new(1.75, 0.0, 1.0);
+        let (u, _) = k.direction_to_pixel(far).unwrap();
+        assert!((u - (31.5 + 100.0 * 1.75 * (1.0 - 0.3 * 1.75 * 1.75) + 0.5)).abs() < 1e-9);
+        assert!(
+            u > 0.0 && u < 64.0,
+            "the polynomial folds into the image: {u}"
+        );
+        assert_eq!(lens.project(far), None);
+        let near = DVec3::new(0.2, -0.1, 1.0);
+        assert_eq!(lens.project(near), k.direction_to_pixel(near));
+        assert_eq!(lens.project(DVec3::new(0.0, 0.0, -1.0)), None);
+    }
+
     /// The pixels' solid angles add up to the field's: the frame's corners'
     /// directions bound it, and without distortion each pixel's is the
     /// pinhole's exact rectangle.
