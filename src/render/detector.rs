@@ -330,7 +330,7 @@ impl Spectral {
 /// through a lens, their centres' directions (else the pinhole's).
 struct OutputPixels<'a> {
     solid_angle: &'a [f32],
-    direction: Option<&'a [[f32; 3]]>,
+    direction: Option<&'a [glam::DVec3]>,
 }
 
 /// Renders each sub-band at its own model and sums radiance and electron
@@ -425,7 +425,7 @@ fn detect(
                 continue;
             }
             let dir = match pixels.direction {
-                Some(d) => glam::DVec3::from(d[k].map(f64::from)),
+                Some(d) => d[k],
                 None => pin.pixel_direction(i, j),
             };
             let cos_los = dir.dot(los);

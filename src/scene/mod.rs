@@ -1318,7 +1318,9 @@ fn lens_from(
         };
     };
     let file = resolve(base, path);
-    let k = crate::instruments::intrinsics::CameraIntrinsics::load(&file)?;
+    // The file's own errors name it and its key; this names the scene's.
+    let k = crate::instruments::intrinsics::CameraIntrinsics::load(&file)
+        .map_err(|e| Error::invalid("camera.distortion", e.to_string()))?;
     let named = |e: Error| Error::invalid("camera.distortion", format!("{}: {e}", file.display()));
     if [k.width, k.height] != c.resolution {
         return Err(named(Error::Other(format!(
@@ -1387,8 +1389,11 @@ pub const MAX_IMAGE_BYTES: f64 = 2.0 * 1024.0 * 1024.0 * 1024.0;
 pub const IMAGE_BYTES_PER_PIXEL: f64 = 48.0;
 
 /// Bytes per camera pixel of a lens's tables (`optics::distortion::Resampler`):
-/// corner positions (24), centre direction (12) and solid angle (4).
-pub const LENS_BYTES_PER_PIXEL: f64 = 40.0;
+/// corner positions (24), centre direction (24), solid angle (4) and the
+/// resampling's weight table once every band is built (68: 8.0 terms of
+/// 8 bytes per pixel and a 4-byte row start, measured for
+/// configs/bench_lens_intrinsics.toml at 4 × 4 samples).
+pub const LENS_BYTES_PER_PIXEL: f64 = 120.0;
 
 /// `camera.resolution` bounded by the memory its images imply, before
 /// anything is allocated.
