@@ -153,9 +153,20 @@ impl Kernel {
     /// is computed (the rest stays 0). Small kernels directly, large ones
     /// (an Airy pattern's rings reach tens of pixels) by FFT.
     pub fn convolve(&self, image: &[f32], width: usize, height: usize) -> Vec<f32> {
+        self.convolve_in_box(image, width, height).0
+    }
+
+    /// [`Kernel::convolve`], and the box [x0, x1) × [y0, y1) it computed
+    /// (outside it the result is 0; None when the image is all 0).
+    pub fn convolve_in_box(
+        &self,
+        image: &[f32],
+        width: usize,
+        height: usize,
+    ) -> (Vec<f32>, Option<[usize; 4]>) {
         let mut out = vec![0.0f32; image.len()];
         let Some(b) = nonzero_box(image, width) else {
-            return out;
+            return (out, None);
         };
         let grow = |lo: usize, hi: usize, n: usize| {
             (lo.saturating_sub(self.half), (hi + self.half).min(n))
@@ -168,14 +179,44 @@ impl Kernel {
             .flat_map(|y| image[y * width + x0..y * width + x1].iter().copied())
             .collect();
         let blurred = if 2 * self.half < DIRECT_MAX_SIDE {
-            self.convolve_direct(&crop, cw, ch)
+            match self.folded() {
+                Some(folded) => convolve_folded(&folded, self.half, &crop, cw, ch),
+                None => self.convolve_direct(&crop, cw, ch),
+            }
         } else {
             self.convolve_fft(&crop, cw, ch)
         };
         for (y, row) in blurred.chunks(cw).enumerate() {
             out[(y0 + y) * width + x0..][..cw].copy_from_slice(row);
         }
-        out
+        (out, Some([x0, x1, y0, y1]))
+    }
+
+    /// The kernel's quadrant w[dy][dx] (dy, dx in 0..=half, row-major),
+    /// when it is mirror-symmetric in x and in y (the Airy and Gaussian
+    /// kernels are, to rounding: within 1e-9 of the peak); each weight the
+    /// mean of its four mirror images.
+    fn folded(&self) -> Option<Vec<f32>> {
+        let (h, n) = (self.half, 2 * self.half + 1);
+        let w = |x: usize, y: usize| self.weights[y * n + x];
+        let peak = self.weights.iter().copied().fold(0.0, f64::max);
+        let mut quadrant = Vec::with_capacity((h + 1) * (h + 1));
+        for dy in 0..=h {
+            for dx in 0..=h {
+                let four = [
+                    w(h + dx, h + dy),
+                    w(h - dx, h + dy),
+                    w(h + dx, h - dy),
+                    w(h - dx, h - dy),
+                ];
+                let mean = four.iter().sum::<f64>() / 4.0;
+                if four.iter().any(|v| (v - mean).abs() > 1e-9 * peak) {
+                    return None;
+                }
+                quadrant.push(mean as f32);
+            }
+        }
+        Some(quadrant)
     }
 
     /// Direct convolution, one kernel weight at a time along whole rows
@@ -242,6 +283,71 @@ impl Kernel {
         }
         out
     }
+}
+
+/// Lanes of one block of output pixels [`convolve_folded`] keeps in
+/// registers.
+const LANES: usize = 8;
+
+/// Direct convolution with a mirror-symmetric kernel given by its
+/// quadrant `quadrant` (see [`Kernel::folded`]): per output row, the
+/// source rows y ± dy are summed first, then each sum is convolved with
+/// the quadrant's row dy, pairing x ± dx; blocks of [`LANES`] output
+/// pixels accumulate every (dy, dx) in registers. A third of the
+/// multiplications of the plain sum, and no accumulator traffic.
+fn convolve_folded(
+    quadrant: &[f32],
+    half: usize,
+    image: &[f32],
+    width: usize,
+    height: usize,
+) -> Vec<f32> {
+    let side = half + 1;
+    let padded = width.div_ceil(LANES) * LANES;
+    // A row sum with `half` zeros before it and enough after it.
+    let stride = padded + 2 * half;
+    let mut out = vec![0.0f32; image.len()];
+    out.par_chunks_mut(width).enumerate().for_each_init(
+        || vec![0.0f32; side * stride],
+        |sums, (y, row)| {
+            let mut rows = 0;
+            for dy in 0..side {
+                let sum = &mut sums[dy * stride..][..stride];
+                sum.fill(0.0);
+                let target = &mut sum[half..half + width];
+                let mut any = false;
+                for sy in [y + dy, y.wrapping_sub(dy)] {
+                    if sy < height && (dy > 0 || !any) {
+                        let src = &image[sy * width..][..width];
+                        target.iter_mut().zip(src).for_each(|(t, &s)| *t += s);
+                        any = true;
+                    }
+                }
+                rows = if any { dy + 1 } else { rows };
+            }
+            for x0 in (0..width).step_by(LANES) {
+                let mut acc = [0.0f32; LANES];
+                for dy in 0..rows {
+                    let sum = &sums[dy * stride..][..stride];
+                    let w = &quadrant[dy * side..][..side];
+                    let centre = &sum[x0 + half..][..LANES];
+                    for l in 0..LANES {
+                        acc[l] += w[0] * centre[l];
+                    }
+                    for dx in 1..side {
+                        let right = &sum[x0 + half + dx..][..LANES];
+                        let left = &sum[x0 + half - dx..][..LANES];
+                        for l in 0..LANES {
+                            acc[l] += w[dx] * (right[l] + left[l]);
+                        }
+                    }
+                }
+                let n = LANES.min(width - x0);
+                row[x0..x0 + n].copy_from_slice(&acc[..n]);
+            }
+        },
+    );
+    out
 }
 
 /// A point source's pixels: `weights` (row-major, side `2 half + 1`,
@@ -371,6 +477,53 @@ mod tests {
         for (x, y) in a.iter().zip(&b) {
             assert!((x - y).abs() < 1e-3, "{x} vs {y}");
         }
+    }
+
+    /// The folded (symmetric) convolution equals the plain direct sum for
+    /// the Gaussian and Airy kernels, on an image with edges and zeros.
+    #[test]
+    fn folded_and_direct_convolution_agree() {
+        for psf in [
+            Psf::Gaussian { sigma_px: 1.1 },
+            Psf::Airy {
+                f_number: 2.5,
+                wavelength_m: 650e-9,
+                pitch_m: 13.3e-6,
+            },
+            Psf::Airy {
+                f_number: 4.0,
+                wavelength_m: 650e-9,
+                pitch_m: 5.5e-6,
+            },
+        ] {
+            let k = kernel(&psf).unwrap();
+            assert!(2 * k.half < DIRECT_MAX_SIDE);
+            let folded = k.folded().expect("symmetric kernel");
+            let (w, h) = (29, 17);
+            let img: Vec<f32> = (0..w * h)
+                .map(|i| {
+                    if i % 5 == 0 {
+                        0.0
+                    } else {
+                        ((i * 7919) % 101) as f32
+                    }
+                })
+                .collect();
+            let (a, b) = (
+                k.convolve_direct(&img, w, h),
+                convolve_folded(&folded, k.half, &img, w, h),
+            );
+            for (x, y) in a.iter().zip(&b) {
+                assert!(
+                    (x - y).abs() < 1e-4 * x.abs().max(1.0),
+                    "{psf:?}: {x} vs {y}"
+                );
+            }
+        }
+        // An asymmetric kernel is not folded.
+        let mut k = kernel(&Psf::Gaussian { sigma_px: 1.1 }).unwrap();
+        k.weights[0] *= 1.5;
+        assert!(k.folded().is_none());
     }
 
     /// The crop to the non-zero box changes nothing: a small blob in a
