@@ -179,23 +179,19 @@ fn cell_means(grid: impl Iterator<Item = (f64, f64)>) -> Vec<f64> {
 mod tests {
     use super::*;
 
-    /// With d = 0 Y is σ N(0, 1): the cells' means are the normal's
-    /// conditional means, whose closed form is
-    /// (φ(z_i) − φ(z_{i+1})) · LEVELS at the cell edges z.
+    /// With d = 0 Y is σ N(0, 1): a central cell's mean is the normal's
+    /// quantile at the cell's middle to O(Φ⁻¹'' / LEVELS²) ~ 10⁻¹⁰ (the
+    /// rational quantile is accurate to 3·10⁻⁹ there). The table's CDF,
+    /// linear over steps h = σ/128, moves a quantile by up to
+    /// h²/8 · |f'/f| = 7.6·10⁻⁶ |z| σ.
     #[test]
     fn normal_cells_take_their_conditional_means() {
         let t = DarkTable::new(0.0, 1.0).unwrap();
-        let phi = |z: f64| (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
-        // Edges from the rational quantile (accurate to 1e-8 centrally).
-        for i in [20_000usize, 32_767, 32_768, 50_000] {
-            let za = crate::sensor::rng::normal_quantile(i as f64 / LEVELS as f64);
-            let zb = crate::sensor::rng::normal_quantile((i + 1) as f64 / LEVELS as f64);
-            let want = (phi(za) - phi(zb)) * LEVELS as f64;
-            assert!(
-                (t.values[i] - want).abs() < 1e-6,
-                "{i}: {} vs {want}",
-                t.values[i]
-            );
+        for i in [20_000usize, 32_767, 32_768, 50_000, 60_000] {
+            let want = crate::sensor::rng::normal_quantile((i as f64 + 0.5) / LEVELS as f64);
+            let bound = 7.7e-6 * want.abs() + 1e-8;
+            let got = t.values[i];
+            assert!((got - want).abs() < bound, "{i}: {got} vs {want}");
         }
         assert!(t.values.windows(2).all(|w| w[0] <= w[1]));
     }

@@ -22,6 +22,17 @@
 //! builds them once. The light and dark charge is one Poisson draw, exact
 //! below a mean of 30 e⁻ and the rounded normal N(μ, μ) above (its mean
 //! and variance within 0.1 % of Poisson's, [`rng::Rng::poisson`]).
+//!
+//! A dark pixel (light mean exactly 0: no rate in its row span and no
+//! smear in its column) has charge Poisson(d) + σ_read N(0, 1) + DSNU_k,
+//! d = dark current × exposure: one distribution shifted by DSNU_k. It is
+//! drawn from [`dark::DarkTable`], 2¹⁶ equally likely cells each holding
+//! that distribution's mean over the cell, with 16 bits of one 64-bit hash
+//! per pixel (4 pixels a hash); the table's mean is exact and its variance
+//! within 10⁻⁵ of d + σ² (tests/sensor_dark_table.rs, which also checks
+//! dark frames' DN histograms by chi-square and KS). The table applies
+//! when σ_read > 0 and no dark pixel can reach the full well; other pixels
+//! are drawn one by one as above.
 
 pub mod dark;
 pub mod rng;
@@ -316,16 +327,15 @@ impl Sensor {
 
     /// Steps 1, 2 and the draw of 4 for pixel `k` (in column `column`):
     /// its charge (light and dark electrons, one Poisson draw of their
-    /// summed mean, plus DSNU) and its read noise [e⁻]. One 64-bit draw
+    /// summed mean, plus DSNU) and its read noise [e⁻]. One 64-bit hash
     /// gives the Poisson step's and the read noise's uniforms, 32 bits
     /// each (they resolve a mean of 10⁻⁹ e⁻ and normal tails to 6.2 σ).
     #[inline]
     fn collect(&self, rate: &[f32], draw: &Draw, column: usize, k: usize) -> (f64, f64) {
-        let mut rng = draw.stream.at(k as u64);
         let smear = draw.smear[column];
         let light = self.prnu[k] as f64 * (rate[k] as f64 * draw.exposure + smear);
         let mean = draw.dark.mean + light;
-        let (u, v) = rng.two_uniforms();
+        let (u, v) = rng::two_uniforms_of(draw.stream.bits(k as u64));
         let electrons = if mean >= rng::NORMAL_POISSON {
             (mean + mean.sqrt() * rng::normal_quantile_fast(u))
                 .round()
@@ -336,7 +346,8 @@ impl Sensor {
                 Some(limit) if light == 0.0 => limit,
                 _ => (-mean).exp(),
             };
-            rng.poisson_small_from(u, limit)
+            // Knuth's further uniforms from the pixel's generator.
+            draw.stream.at(k as u64).poisson_small_from(u, limit)
         };
         let read = self.params.read_noise * rng::normal_quantile_fast(v);
         (electrons + self.dsnu[k] as f64, read)
@@ -456,26 +467,9 @@ fn runs(values: &[f64]) -> Vec<(usize, usize)> {
 }
 
 /// The span [a, b) from the row's first to its last non-zero rate (NaN
-/// counts as non-zero), found 16 values at a time.
+/// counts as non-zero).
 fn lit_span(row: &[f32]) -> Option<(usize, usize)> {
-    const CHUNK: usize = 16;
-    #[inline]
-    fn nonzero(c: &[f32]) -> bool {
-        let mut bits = 0u32;
-        for v in c {
-            bits |= v.to_bits() << 1;
-        }
-        bits != 0
-    }
-    let chunks = row.len().div_ceil(CHUNK);
-    let chunk = |i: usize| &row[i * CHUNK..((i + 1) * CHUNK).min(row.len())];
-    let first_chunk = (0..chunks).find(|&i| nonzero(chunk(i)))?;
-    let last_chunk = (first_chunk..chunks).rev().find(|&i| nonzero(chunk(i)))?;
-    let lit = |v: &f32| v.to_bits() << 1 != 0;
-    let a = first_chunk * CHUNK + row[first_chunk * CHUNK..].iter().position(lit)?;
-    let end = (last_chunk * CHUNK + CHUNK).min(row.len());
-    let b = row[..end].iter().rposition(lit)? + 1;
-    Some((a, b))
+    crate::optics::psf::nonzero_span(row)
 }
 
 /// Calls `f(a, b, lit)` on consecutive segments covering 0..`width`:
