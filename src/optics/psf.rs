@@ -363,8 +363,8 @@ fn folded_block<'a>(
             let w0 = _mm_set1_ps(w[0]);
             even0 = _mm_add_ps(even0, _mm_mul_ps(w0, load(s, half)));
             even1 = _mm_add_ps(even1, _mm_mul_ps(w0, load(s, half + 4)));
-            for dx in 1..side {
-                let wd = _mm_set1_ps(w[dx]);
+            for (dx, &weight) in w.iter().enumerate().skip(1) {
+                let wd = _mm_set1_ps(weight);
                 let p0 = _mm_add_ps(load(s, half + dx), load(s, half - dx));
                 let p1 = _mm_add_ps(load(s, half + dx + 4), load(s, half - dx + 4));
                 if dx % 2 == 1 {

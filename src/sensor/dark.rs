@@ -2,8 +2,9 @@
 //!
 //! Without light a pixel's charge is Poisson(d) + DSNU_k + σ·N(0, 1),
 //! d = dark current × exposure, σ the read noise: apart from the fixed
-//! DSNU_k shift every such pixel has the same distribution Y = Poisson(d)
-//! + σ·N(0, 1). [`DarkTable`] holds Y's inverse CDF once per (d, σ):
+//! DSNU_k shift every such pixel has the same distribution, that of
+//! Y = Poisson(d) + σ·N(0, 1). [`DarkTable`] holds Y's inverse CDF once
+//! per (d, σ):
 //! [`LEVELS`] equally likely cells of probability, each drawn as the mean
 //! of Y over its cell (so the table's mean is Y's and it loses only the
 //! spread inside a cell), from the exact CDF F(y) = Σ_k pmf(k) Φ((y − k)/σ)

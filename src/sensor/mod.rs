@@ -265,12 +265,12 @@ impl Sensor {
                         dark.fill(&mut row[a..b], j * w + a, &self.dsnu[j * w + a..][..b - a])
                     }
                     _ => {
-                        for i in a..b {
+                        for (i, out) in row.iter_mut().enumerate().take(b).skip(a) {
                             let (q, r) = self.collect(rate, &draw, i, j * w + i);
                             if bloom && q > full_well {
                                 over.push(i);
                             }
-                            row[i] = self.digitise(q + r);
+                            *out = self.digitise(q + r);
                         }
                     }
                 });
