@@ -188,7 +188,7 @@ impl InteriorMask {
         rays: &PixelRays,
         flux: &mut [f32],
         width: usize,
-        node_spacing: usize,
+        (node_spacing, shadow_edges): (usize, bool),
     ) -> (f64, DirectCounts) {
         let roi = self.roi;
         let w = roi.width();
@@ -287,7 +287,7 @@ impl InteriorMask {
                 |(a, ca), (b, cb)| (a + b, ca.merged(cb)),
             );
         self.shadow_edges = 0;
-        if !shadows {
+        if !shadows || !shadow_edges {
             return (sum, counts);
         }
         let (delta, edges) =

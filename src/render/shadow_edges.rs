@@ -7,8 +7,10 @@
 //! interior neighbour's takes the mean factor over [`EDGE_POINTS`]² points
 //! of its preimage instead: the shading is smooth across the pixel, the
 //! shadow is not, so the pixel's flux is its unshadowed flux times that
-//! mean. A shadow smaller than a pixel that reaches no pixel centre is
-//! still missed.
+//! mean. A pixel whose centre is wholly lit or dark first probes 2 × 2
+//! points and keeps its centre's factor where all four agree (the edge
+//! passed beside it). A shadow smaller than a pixel that reaches no pixel
+//! centre or probe is still missed.
 
 use rayon::prelude::*;
 
@@ -91,7 +93,9 @@ pub fn refine(
                 }
                 let i = roi.x0 + ii;
                 let s = centre.factors[(j - roi.y0) * roi.width() + ii] as f64;
-                let mean = mean_factor(frame, pixels, i, j);
+                let Some(mean) = mean_factor(frame, pixels, i, j, s) else {
+                    continue;
+                };
                 let unshadowed = if s > 0.5 {
                     row[i] as f64 / s
                 } else {
@@ -107,8 +111,25 @@ pub fn refine(
         .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
 }
 
-/// Mean shadow factor over [`EDGE_POINTS`]² points of pixel (i, j).
-fn mean_factor(frame: &Frame, pixels: &impl PixelShadow, i: usize, j: usize) -> f64 {
+/// Mean shadow factor over [`EDGE_POINTS`]² points of pixel (i, j), or
+/// None where the centre's factor `s` (0 or 1) holds at 2 × 2 probe
+/// points too: the edge passed beside the pixel, not through it.
+fn mean_factor(
+    frame: &Frame,
+    pixels: &impl PixelShadow,
+    i: usize,
+    j: usize,
+    s: f64,
+) -> Option<f64> {
+    if s == 0.0 || s == 1.0 {
+        let probe = |a: f64, b: f64| pixels.shadow_at(frame, i as f64 + a, j as f64 + b);
+        if [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
+            .iter()
+            .all(|&(a, b)| probe(a, b) == s)
+        {
+            return None;
+        }
+    }
     let n = EDGE_POINTS;
     let mut sum = 0.0;
     for b in 0..n {
@@ -118,5 +139,5 @@ fn mean_factor(frame: &Frame, pixels: &impl PixelShadow, i: usize, j: usize) -> 
             sum += pixels.shadow_at(frame, u, v);
         }
     }
-    sum / (n * n) as f64
+    Some(sum / (n * n) as f64)
 }
