@@ -10,6 +10,8 @@
 //! interior, and its choice meets the target against the same kind of
 //! independent converged render.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -63,15 +65,9 @@ fn interior_p99(image: &[f32], truth: &[f32], renderer: &Renderer) -> f64 {
 /// The 99th percentile (nearest rank) of |image / truth − 1| over every
 /// pixel whose truth is above 1 % of its peak.
 fn disk_p99(image: &[f32], truth: &[f32]) -> f64 {
-    let peak = truth.iter().copied().fold(0.0f32, f32::max) as f64;
-    let mut e: Vec<f64> = (0..truth.len())
-        .filter(|&k| truth[k] as f64 > 0.01 * peak)
-        .map(|k| (image[k] as f64 / truth[k] as f64 - 1.0).abs())
-        .collect();
+    let e = common::sorted_relative_errors(image, truth);
     assert!(e.len() > 5_000, "{} disk pixels", e.len());
-    e.sort_by(f64::total_cmp);
-    let rank = (0.99 * e.len() as f64).ceil() as usize - 1;
-    e[rank]
+    common::nearest_rank(&e, 0.99)
 }
 
 /// The relief Moon at 384 px (a pixel covers about three DEM cells):

@@ -7,6 +7,8 @@
 //! points of every pixel) the disk's p99 stays within the figures quoted
 //! in docs/SCENE.md, at 30° and 105° phase.
 
+mod common;
+
 use std::path::PathBuf;
 
 use optistim::render::{Interior, Renderer};
@@ -40,16 +42,10 @@ fn sun_at(phase: f64) -> [f64; 3] {
 /// p99 and share above 50 % of |image / truth − 1| over the pixels whose
 /// truth is above 1 % of its peak.
 fn errors(image: &[f32], truth: &[f32]) -> (f64, f64) {
-    let peak = truth.iter().copied().fold(0.0f32, f32::max) as f64;
-    let mut e: Vec<f64> = (0..truth.len())
-        .filter(|&k| truth[k] as f64 > 0.01 * peak)
-        .map(|k| (image[k] as f64 / truth[k] as f64 - 1.0).abs())
-        .collect();
+    let e = common::sorted_relative_errors(image, truth);
     assert!(e.len() > 5_000, "{} disk pixels", e.len());
-    e.sort_by(f64::total_cmp);
-    let rank = (0.99 * e.len() as f64).ceil() as usize - 1;
     let wild = e.iter().filter(|&&x| x > 0.5).count() as f64 / e.len() as f64;
-    (e[rank], wild)
+    (common::nearest_rank(&e, 0.99), wild)
 }
 
 #[test]

@@ -75,8 +75,9 @@ const EDGE_POINTS: usize = 4;
 
 /// The factor pixel k should carry: its centre's, or where the shadow's
 /// edge crosses it (its centre in the penumbra, or an interior
-/// neighbour's centre factor different) the mean of [`EDGE_POINTS`]²
-/// exact factors over the pixel.
+/// neighbour's centre factor different, and for a centre wholly lit or
+/// dark a 2 × 2 probe disagreeing) the mean of [`EDGE_POINTS`]² exact
+/// factors over the pixel.
 fn pixel_factor(
     scene: &optistim::scene::Scene,
     map: &HorizonMap,
@@ -94,6 +95,18 @@ fn pixel_factor(
     });
     let penumbra = s > 0.0 && s < 1.0;
     if !penumbra && !neighbour_differs {
+        return s;
+    }
+    // Wholly lit or dark at the centre and at 2 × 2 probes: the edge
+    // passed beside the pixel.
+    let probe = |a: f64, b: f64| {
+        exact_factor_at(scene, map, radius, i as f64 + a, j as f64 + b).unwrap_or(0.0)
+    };
+    if !penumbra
+        && [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
+            .iter()
+            .all(|&(a, b)| probe(a, b) == s)
+    {
         return s;
     }
     let n = EDGE_POINTS;
