@@ -204,19 +204,13 @@ impl InteriorMask {
             ..*frame
         };
         let shadows = frame.shadows.is_some();
-        self.centre_factors
-            .reset(if shadows { roi } else { Rect::default() });
-        let centre_rows: Vec<&mut [f32]> = if shadows {
-            self.centre_factors.factors.chunks_mut(w).collect()
-        } else {
-            (0..roi.height()).map(|_| <&mut [f32]>::default()).collect()
-        };
+        self.centre_factors.reset(roi, shadows);
         let (sum, counts) = flux
             .par_chunks_mut(width)
             .enumerate()
             .skip(roi.y0)
             .take(roi.height())
-            .zip(centre_rows)
+            .zip(self.centre_factors.rows_mut())
             .map(|((j, row), centre)| {
                 let mask = &interior[(j - roi.y0) * w..(j - roi.y0 + 1) * w];
                 let mut counts = DirectCounts::default();
@@ -249,8 +243,8 @@ impl InteriorMask {
                                     rays.relief_shadow_at(frame, i, j)
                                 }
                             };
-                            if let Some(c) = centre.get_mut(ii) {
-                                *c = shadow as f32;
+                            if shadows {
+                                centre[ii] = shadow as f32;
                             }
                             if shadow == 0.0 {
                                 counts.dark += 1;

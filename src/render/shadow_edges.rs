@@ -34,11 +34,21 @@ pub struct CentreFactors {
 }
 
 impl CentreFactors {
-    /// Clear for `roi`: every pixel unrecorded.
-    pub fn reset(&mut self, roi: Rect) {
+    /// Clear for `roi`: every pixel unrecorded. Without `record` (a frame
+    /// without cast shadows) each row keeps a single slot, so the rows
+    /// still pair with the image's in one pass and nothing grows.
+    pub fn reset(&mut self, roi: Rect, record: bool) {
         self.roi = roi;
+        let row = if record { roi.width().max(1) } else { 1 };
         self.factors.clear();
-        self.factors.resize(roi.width() * roi.height(), NONE);
+        self.factors.resize(row * roi.height(), NONE);
+    }
+
+    /// One mutable slice per ROI row (a row's factors, or its single slot
+    /// without recording), for the interior pass.
+    pub fn rows_mut(&mut self) -> rayon::slice::ChunksMut<'_, f32> {
+        let row = (self.factors.len() / self.roi.height().max(1)).max(1);
+        self.factors.par_chunks_mut(row)
     }
 
     /// Whether ROI pixel (ii, jj) is a shadow edge: its factor in the
