@@ -556,7 +556,7 @@ pub fn validate_amie(
     out: &Path,
     data: &Path,
     kernels: Option<&Path>,
-    (relief, psf_sigma): (&str, Option<f64>),
+    (relief, psf_sigma, caps_per_pixel): (&str, Option<f64>, Option<f64>),
     overwrite: bool,
 ) -> Result<()> {
     use optistim::scene::{horizon::ShadowMode, ShadowsSpec};
@@ -576,6 +576,7 @@ pub fn validate_amie(
         other => anyhow::bail!("--relief must be `none`, `shadows` or `full`, not `{other}`"),
     };
     options.psf_sigma_px = psf_sigma;
+    options.caps_per_pixel = caps_per_pixel;
     let run = compare::run(img, model, &options)
         .with_context(|| format!("validating {} with {model}", img.display()))?;
     compare::write_outputs(&run, out).with_context(|| format!("writing {}", out.display()))?;
@@ -595,6 +596,9 @@ pub fn validate_amie(
         r.phase_derived_deg,
         r.phase_label_deg
     );
+    if let Some(s) = &r.relief_signal {
+        println!("{} {model}: {}", r.product_id, compare::relief_note(s));
+    }
     Ok(())
 }
 

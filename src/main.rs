@@ -169,6 +169,10 @@ enum ValidateCommand {
         /// (AMIE publishes none; default: no PSF).
         #[arg(long)]
         psf_sigma: Option<f64>,
+        /// Surface caps per pixel of the render (default: the renderer's;
+        /// a displaced DEM needs about 4 to converge, BENCHMARKS.md).
+        #[arg(long)]
+        caps_per_pixel: Option<f64>,
         /// Replace an earlier validation in `--out`.
         #[arg(long)]
         overwrite: bool,
@@ -263,6 +267,7 @@ fn main() -> ExitCode {
             kernels,
             relief,
             psf_sigma,
+            caps_per_pixel,
             overwrite,
         }) => cli::validate_amie(
             &img,
@@ -270,7 +275,7 @@ fn main() -> ExitCode {
             &out,
             &data,
             kernels.as_deref(),
-            (&relief, psf_sigma),
+            (&relief, psf_sigma, caps_per_pixel),
             overwrite,
         ),
     };

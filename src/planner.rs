@@ -12,9 +12,9 @@
 //! terminator) come from the lune's caps at the scene's density, which no
 //! step changes; their p99 is reported beside it.
 //!
-//! Where the caps draw most of the disk (a displaced relief, `geometry =
-//! "distant"`, `interior = "caps"`: fewer than [`MIN_INTERIOR_SHARE`] of
-//! its pixels are interior), the interior says nothing about the image:
+//! Where the caps draw most of the disk in the ladder's renders (a
+//! displaced relief, `geometry = "distant"`: fewer than
+//! [`MIN_INTERIOR_SHARE`] of its pixels are interior), the interior says nothing about the image:
 //! the whole disk's p99 is planned on instead, the ladder gains a step at
 //! [`CAPS_STEP_DENSITY`] caps per pixel, and the converged render takes
 //! [`CAPS_REFERENCE_DENSITY`].
@@ -93,20 +93,22 @@ pub struct Planner<'a> {
 
 impl<'a> Planner<'a> {
     /// Renders `scene`'s converged reference (the ladder on the scene's
-    /// own `[render]` settings). A render at the scene's settings first
-    /// tells whether the interior or the caps draw its disk.
+    /// own `[render]` settings). The ladder's coarsest step, which
+    /// [`Planner::plan`] measures first anyway, is rendered first: it tells
+    /// whether the interior or the caps draw the disk in the ladder's
+    /// renders, and is kept as that step's measurement.
     pub fn new(scene: &'a Scene) -> Planner<'a> {
         let t = Instant::now();
         let mut renderer = Renderer::new(scene.camera.pinhole.clone());
-        renderer.render_flux(&scene.body, &scene.state, &scene.render, None);
-        let judged = if interior_share(&renderer) >= MIN_INTERIOR_SHARE {
+        let mut ladder = fidelity::planner_ladder(&scene.render);
+        let coarsest = StepRender::of(&mut renderer, scene, &ladder[ladder.len() - 1].settings);
+        let judged = if coarsest.interior_share() >= MIN_INTERIOR_SHARE {
             Judged::Interior
         } else {
             Judged::Disk
         };
         let mut reference_settings = fidelity::reference_settings(&scene.render);
         reference_settings.texture_samples = REFERENCE_PARTS;
-        let mut ladder = fidelity::planner_ladder(&scene.render);
         if judged == Judged::Disk {
             reference_settings.caps_per_pixel = Some(caps_reference_density(&scene.render));
             if scene.render.density() < CAPS_STEP_DENSITY {
@@ -115,7 +117,9 @@ impl<'a> Planner<'a> {
         }
         renderer.render_flux(&scene.body, &scene.state, &reference_settings, None);
         let reference = renderer.flux().to_vec();
-        let measured = vec![None; ladder.len()];
+        let mut measured = vec![None; ladder.len()];
+        let last = ladder.len() - 1;
+        measured[last] = Some(coarsest.measure(last, &ladder[last].label, &reference));
         Planner {
             scene,
             renderer,
@@ -143,28 +147,9 @@ impl<'a> Planner<'a> {
             return m.clone();
         }
         let t = Instant::now();
-        let settings = &self.ladder[i].settings;
-        self.renderer
-            .render_flux(&self.scene.body, &self.scene.state, settings, None);
-        let render_ms = t.elapsed().as_secs_f64() * 1e3;
-        let flux = self.renderer.flux();
-        let width = self.scene.camera.pinhole.width;
-        let r = &self.renderer;
-        let m = StepMeasure {
-            step: i,
-            label: self.ladder[i].label.clone(),
-            interior_pixel_error_p99: fidelity::pixel_error_p99(
-                flux,
-                &self.reference,
-                PIXEL_FLOOR,
-                |k| r.is_interior_pixel(k % width, k / width),
-            ),
-            pixel_error_p99: fidelity::pixel_error_p99(flux, &self.reference, PIXEL_FLOOR, |_| {
-                true
-            }),
-            flux_error: fidelity::flux_error(flux, &self.reference),
-            render_ms,
-        };
+        let step = &self.ladder[i];
+        let render = StepRender::of(&mut self.renderer, self.scene, &step.settings);
+        let m = render.measure(i, &step.label, &self.reference);
         self.spent += t.elapsed().as_secs_f64();
         self.measured[i] = Some(m.clone());
         m
@@ -251,25 +236,67 @@ impl<'a> Planner<'a> {
     }
 }
 
-/// Share of the last render's lit pixels (flux above [`PIXEL_FLOOR`] of
-/// its peak) that were integrated per pixel.
-fn interior_share(renderer: &Renderer) -> f64 {
-    let flux = renderer.flux();
-    let width = renderer.camera().width;
-    let peak = flux.iter().copied().fold(0.0f32, f32::max);
-    let lit = flux
-        .iter()
-        .enumerate()
-        .filter(|&(_, &v)| v > PIXEL_FLOOR * peak);
-    let (mut n, mut interior) = (0usize, 0usize);
-    for (k, _) in lit {
-        n += 1;
-        interior += usize::from(renderer.is_interior_pixel(k % width, k / width));
+/// One step's render: its flux, which pixels were integrated per pixel,
+/// and how long it took.
+struct StepRender {
+    flux: Vec<f32>,
+    interior: Vec<bool>,
+    render_ms: f64,
+}
+
+impl StepRender {
+    fn of(renderer: &mut Renderer, scene: &Scene, settings: &RenderSettings) -> StepRender {
+        let t = Instant::now();
+        renderer.render_flux(&scene.body, &scene.state, settings, None);
+        let render_ms = t.elapsed().as_secs_f64() * 1e3;
+        let width = renderer.camera().width;
+        let flux = renderer.flux().to_vec();
+        let interior = (0..flux.len())
+            .map(|k| renderer.is_interior_pixel(k % width, k / width))
+            .collect();
+        StepRender {
+            flux,
+            interior,
+            render_ms,
+        }
     }
-    if n == 0 {
-        return 1.0;
+
+    /// The render compared with the converged `reference`.
+    fn measure(&self, step: usize, label: &str, reference: &[f32]) -> StepMeasure {
+        let interior = |k: usize| self.interior[k];
+        StepMeasure {
+            step,
+            label: label.to_string(),
+            interior_pixel_error_p99: fidelity::pixel_error_p99(
+                &self.flux,
+                reference,
+                PIXEL_FLOOR,
+                interior,
+            ),
+            pixel_error_p99: fidelity::pixel_error_p99(&self.flux, reference, PIXEL_FLOOR, |_| {
+                true
+            }),
+            flux_error: fidelity::flux_error(&self.flux, reference),
+            render_ms: self.render_ms,
+        }
     }
-    interior as f64 / n as f64
+
+    /// Share of the lit pixels (flux above [`PIXEL_FLOOR`] of the peak)
+    /// that were integrated per pixel; 1 with none lit.
+    fn interior_share(&self) -> f64 {
+        let peak = self.flux.iter().copied().fold(0.0f32, f32::max);
+        let (mut n, mut interior) = (0usize, 0usize);
+        for (&v, &inside) in self.flux.iter().zip(&self.interior) {
+            if v > PIXEL_FLOOR * peak {
+                n += 1;
+                interior += usize::from(inside);
+            }
+        }
+        if n == 0 {
+            return 1.0;
+        }
+        interior as f64 / n as f64
+    }
 }
 
 /// The scene's settings at [`CAPS_STEP_DENSITY`] caps per pixel.

@@ -37,6 +37,7 @@ use super::background::{remove_background, BackgroundModel, BackgroundParams, Di
 use super::ephem::{self, Utc};
 use super::figure;
 use super::raster::Raster;
+use super::relief_signal::{relief_signal, ReliefSignal};
 use super::ssim::{ssim, SsimResult, AMIE_DATA_RANGE};
 use crate::error::{Error, Result};
 use crate::radiometry::reflectance::ReflectanceConfig;
@@ -316,6 +317,9 @@ pub struct ValidationReport {
     pub ssim_disk: SsimScores,
     /// Real pixels below this were set to 0 [DN].
     pub noise_floor_dn: f64,
+    /// With `relief`: the relief's change to the render against the
+    /// residual of a render without it ([`relief_signal`]).
+    pub relief_signal: Option<ReliefSignal>,
 }
 
 /// A validation with its images (for the figure).
@@ -336,7 +340,7 @@ fn figure_notes(r: &ValidationReport) -> Vec<String> {
             s.mssim, s.luminance, s.contrast, s.structure
         )
     };
-    vec![
+    let mut notes = vec![
         format!("SSIM full frame: {}", scores(&r.ssim)),
         format!("SSIM over the disk: {}", scores(&r.ssim_disk)),
         format!(
@@ -351,7 +355,23 @@ fn figure_notes(r: &ValidationReport) -> Vec<String> {
             "phase: {:.2}° derived, {:.2}° in the label ({:.2}° at the disk centre)",
             r.phase_derived_deg, r.phase_label_deg, r.phase_at_centre_deg
         ),
-    ]
+    ];
+    if let Some(s) = &r.relief_signal {
+        notes.push(relief_note(s));
+    }
+    notes
+}
+
+/// One line on the relief's change against the residual without it.
+pub fn relief_note(s: &ReliefSignal) -> String {
+    format!(
+        "relief vs residual without it ({} px ≥ {} px inside the limb): correlation {:.3}, gain {:.3}, residual {:+.1} %",
+        s.pixels,
+        s.inset_px,
+        s.correlation,
+        s.gain,
+        100.0 * s.residual_change
+    )
 }
 
 /// Runs the pipeline on one AMIE image; see the module doc.
@@ -632,6 +652,10 @@ pub fn run(
     let s_norm = ssim(real, &scaled, AMIE_DATA_RANGE)?;
     let s_raw = ssim(real, &shifted, AMIE_DATA_RANGE)?;
     let s_no_floor = ssim(&m.subtracted, &scaled, AMIE_DATA_RANGE)?;
+    let relief_signal = match options.relief {
+        Some(_) => flat_comparison(&obs, &choice, options, ecl.as_ref(), &m, &scaled)?,
+        None => None,
+    };
 
     let scene = &r.scene;
     let pin = &scene.camera.pinhole;
@@ -684,6 +708,7 @@ pub fn run(
         ssim_without_noise_floor: SsimScores::from(&s_no_floor),
         noise_floor_dn: m.floor as f64,
         ssim_disk: disk_scores(&s_norm, &m.aligned_disk, SIGNAL_MARGIN_PX),
+        relief_signal,
     };
     Ok(ValidationRun {
         report,
@@ -691,6 +716,36 @@ pub fn run(
         render: scaled,
         ssim: s_norm,
     })
+}
+
+/// [`relief_signal`] of the relief render `scaled` (aligned and scaled by
+/// `m`) against a render of the same observation without relief, aligned
+/// by the same shift and scaled to the same real total.
+fn flat_comparison(
+    obs: &AmieObservation,
+    choice: &ModelChoice,
+    options: &ValidationOptions,
+    ecl: Option<&EclipseReport>,
+    m: &Matched,
+    scaled: &Raster,
+) -> Result<Option<ReliefSignal>> {
+    let flat = ValidationOptions {
+        relief: None,
+        ..options.clone()
+    };
+    let r = render_observation(obs, choice, &flat, ecl)?;
+    let shifted = shift_bilinear(&r.dn, m.align.dx, m.align.dy, 0.0);
+    let total = sum_within(&shifted, &m.aligned_disk, SIGNAL_MARGIN_PX);
+    if total <= 0.0 {
+        return Ok(None);
+    }
+    let k = (sum_within(&m.real, &m.aligned_disk, SIGNAL_MARGIN_PX) / total) as f32;
+    let without = Raster::new(
+        shifted.width,
+        shifted.height,
+        shifted.data.iter().map(|&v| v * k).collect(),
+    )?;
+    Ok(relief_signal(&m.real, scaled, &without, &m.aligned_disk))
 }
 
 /// The model's render of an AMIE observation, in float DN.

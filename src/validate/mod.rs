@@ -23,6 +23,7 @@ pub mod ephem;
 pub mod figure;
 pub mod pds3;
 pub mod raster;
+pub mod relief_signal;
 pub mod ssim;
 
 pub use raster::Raster;
