@@ -97,23 +97,3 @@ fn label_earth_fixed_vector_gives_the_moon_to_tens_of_km() {
         assert!(d < 40.0, "{d}");
     }
 }
-
-/// Every model on both images (the table of docs/VALIDATION.md); only checks
-/// that each runs. `cargo test --test validate_pipeline -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn table_all_models() {
-    println!("| image | model | shift (dx, dy) px | luminance | contrast | structure | SSIM | unnorm. luminance | real/render | disk l / c / s |");
-    for img in [IMG1, IMG2] {
-        for m in ["oren_nayar", "hapke", "lambert", "lommel_seeliger"] {
-            let r = run(img, m);
-            let out = format!(
-                "{}/out/val_{}_{m}",
-                env!("CARGO_MANIFEST_DIR"),
-                &r.product_id[15..]
-            );
-            let full = compare::run(img, m, &ValidationOptions::new(DATA)).unwrap();
-            compare::write_outputs(&full, &out).unwrap();
-        }
-    }
-}
