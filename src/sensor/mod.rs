@@ -15,6 +15,12 @@
 //! 5. full-well clip, system gain K [DN/e⁻], offset, rounding and the ADC
 //!    range [0, 2^bits − 1].
 //!
+//! Three optional effects ([`extras`], off by default) complete it for the
+//! simulated facility's camera, which reads out through this same chain:
+//! the non-linearity e (1 − β e / full_well) of the charge before the read
+//! noise (the clip then sits at the full well's response), a per-row offset
+//! σ_row · N(0, 1) added with the read noise, and shot noise off.
+//!
 //! PRNU_k = max(0, 1 + prnu · N(0, 1)) and DSNU_k = dsnu · N(0, 1) are
 //! fixed per pixel by `seed`; the temporal noise of frame f is drawn from
 //! (seed, f, pixel), so a frame is reproducible whatever the thread count.
@@ -23,6 +29,7 @@
 //! below a mean of 30 e⁻ and the rounded normal N(μ, μ) above (its mean
 //! and variance within 0.1 % of Poisson's, [`rng::Rng::poisson`]).
 
+pub mod extras;
 pub mod rng;
 
 use std::sync::Arc;
@@ -62,6 +69,13 @@ pub struct SensorFile {
     transfer_time: f64,
     #[serde(default)]
     blooming: bool,
+    #[serde(default)]
+    nonlinearity: f64,
+    #[serde(default)]
+    row_noise: f64,
+    /// Absent: on.
+    #[serde(default)]
+    shot_noise: Option<bool>,
 }
 
 /// Checked sensor parameters (the camera's full well, gain and bits
@@ -84,6 +98,12 @@ pub struct SensorParams {
     pub transfer_time: f64,
     /// Charge above the full well spills along the column.
     pub blooming: bool,
+    /// Non-linearity β: the charge reads as e (1 − β e / full_well).
+    pub nonlinearity: f64,
+    /// Per-row offset [e⁻ rms], the same along a row of one frame.
+    pub row_noise: f64,
+    /// Poisson charge (true) or its mean (false).
+    pub shot_noise: bool,
 }
 
 impl SensorFile {
@@ -98,6 +118,9 @@ impl SensorFile {
             offset: range(self.offset, 0.0, max_dn, "offset")?,
             transfer_time: range(self.transfer_time, 0.0, 1e3, "transfer_time")?,
             blooming: self.blooming,
+            nonlinearity: range(self.nonlinearity, 0.0, 0.5, "nonlinearity")?,
+            row_noise: range(self.row_noise, 0.0, 1e6, "row_noise")?,
+            shot_noise: self.shot_noise.unwrap_or(true),
         })
     }
 }
@@ -142,6 +165,9 @@ pub struct Sensor {
     dsnu: Vec<f32>,
     /// `readout.max_dn()`, computed once (it is a power of two less one).
     max_dn: f64,
+    /// The charge the clip after the read noise caps at: the full well's
+    /// response ([`extras::response`]; the full well when β = 0).
+    full_scale: f64,
 }
 
 /// One frame read out.
@@ -177,6 +203,7 @@ impl Sensor {
             prnu,
             dsnu,
             max_dn: readout.max_dn(),
+            full_scale: extras::response(readout.full_well, params.nonlinearity, readout.full_well),
         }
     }
 
@@ -218,11 +245,13 @@ impl Sensor {
     pub fn expose(&self, rate: &[f32], exposure: f64, frame: u64) -> SensorFrame {
         assert_eq!(rate.len(), self.width * self.height, "rate image size");
         let w = self.width;
+        let stream = Stream::new(self.params.seed, FRAME_STREAM + frame);
         let draw = Draw {
             smear: self.smear(rate),
             dark: DarkDraw::new(self.params.dark_current * exposure),
             exposure,
-            stream: Stream::new(self.params.seed, FRAME_STREAM + frame),
+            rows: extras::row_offsets(&stream, rate.len(), self.height, self.params.row_noise),
+            stream,
         };
         let full_well = self.readout.full_well;
         let bloom = self.params.blooming;
@@ -239,7 +268,7 @@ impl Sensor {
                     if bloom && q > full_well {
                         over.push(i);
                     }
-                    *out = self.digitise(q + r);
+                    *out = self.digitise(q, r + draw.rows[j]);
                 }
                 over
             })
@@ -248,7 +277,7 @@ impl Sensor {
         over.dedup();
         self.bloom_columns(&over, rate, &draw, &mut dn);
         let r = &self.readout;
-        let sat_dn = (self.params.offset + r.gain * r.full_well)
+        let sat_dn = (self.params.offset + r.gain * self.full_scale)
             .round()
             .min(r.max_dn());
         let saturated = dn.par_iter().filter(|&&v| v as f64 >= sat_dn).count() as u64;
@@ -269,7 +298,8 @@ impl Sensor {
                 let column = charge
                     .iter()
                     .zip(&read)
-                    .map(|(&q, &r)| self.digitise(q + r))
+                    .enumerate()
+                    .map(|(j, (&q, &r))| self.digitise(q, r + draw.rows[j]))
                     .collect();
                 (i, column)
             })
@@ -290,6 +320,12 @@ impl Sensor {
         let smear = draw.smear[column];
         let light = self.prnu[k] as f64 * (rate[k] as f64 * draw.exposure + smear);
         let sigma = self.params.read_noise;
+        if !self.params.shot_noise {
+            return (
+                draw.dark.mean + light + self.dsnu[k] as f64,
+                sigma * rng.normal_fast(),
+            );
+        }
         let (electrons, read) = match draw.dark.limit {
             // A dark pixel (most of a sky frame): e^(−mean) once per frame,
             // and one draw for the Poisson step and the read noise.
@@ -313,11 +349,13 @@ impl Sensor {
         (electrons + self.dsnu[k] as f64, read)
     }
 
-    /// Step 5: full well, gain, offset, rounding and the ADC range.
+    /// Step 5 on charge `charge` and read (and row) noise `noise` [e⁻]:
+    /// the non-linearity, full well, gain, offset, rounding and ADC range.
     #[inline]
-    fn digitise(&self, electrons: f64) -> u16 {
+    fn digitise(&self, charge: f64, noise: f64) -> u16 {
         let r = &self.readout;
-        (self.params.offset + r.gain * electrons.min(r.full_well))
+        let electrons = extras::response(charge, self.params.nonlinearity, r.full_well) + noise;
+        (self.params.offset + r.gain * electrons.min(self.full_scale))
             .round()
             .clamp(0.0, self.max_dn)
             .min(u16::MAX as f64) as u16
@@ -348,6 +386,8 @@ struct Draw {
     exposure: f64,
     /// The frame's random stream: pixel k draws from `stream.at(k)`.
     stream: Stream,
+    /// Row offsets [e⁻] ([`extras::row_offsets`]).
+    rows: Vec<f64>,
 }
 
 /// The dark charge's mean over one exposure and, below 30 e⁻, its e^(−mean).
@@ -463,6 +503,9 @@ mod tests {
             offset: 0.0,
             transfer_time: 0.01,
             blooming: false,
+            nonlinearity: 0.0,
+            row_noise: 0.0,
+            shot_noise: true,
         };
         let readout = Readout {
             full_well: 1e9,
