@@ -77,7 +77,7 @@ fn main() -> anyhow::Result<()> {
         let (tb, cb, _) = timed(&bare, &mut r_bare, &p_bare);
         let (p, l, q) = stages(&s);
         if round == 0 {
-            cold = Some((t, p, l, q));
+            cold = Some((t, c, p, l, q));
             continue;
         }
         push(&mut with, t);
@@ -89,7 +89,7 @@ fn main() -> anyhow::Result<()> {
         push(&mut sensor, q);
         push(&mut flux, s.render_ms);
     }
-    let (cold_t, cold_psf, cold_lens, cold_sensor) = cold.unwrap_or_default();
+    let (cold_t, cold_cpu, cold_psf, cold_lens, cold_sensor) = cold.unwrap_or_default();
     let (w, wo) = (median(with), median(without));
     println!(
         "scene {}; {} threads; {} rounds after a cold one",
@@ -98,7 +98,7 @@ fn main() -> anyhow::Result<()> {
         renders.max(1)
     );
     println!(
-        "cold: whole chain {cold_t:.1} ms (PSF {cold_psf:.1} ms, distortion {cold_lens:.1} ms, sensor {cold_sensor:.1} ms)"
+        "cold: whole chain {cold_t:.1} ms (PSF {cold_psf:.1} ms, distortion {cold_lens:.1} ms, sensor {cold_sensor:.1} ms); CPU {cold_cpu:.1} ms"
     );
     println!("| quantity | median [ms] |");
     println!("|---|---|");

@@ -58,12 +58,6 @@ pub fn render(
         .collect();
     optistim::outfile::check_no_earlier(&files, overwrite)?;
     let mut scene = Scene::from_file(scene_path)?;
-    if labels && scene.camera.distortion.is_some() {
-        anyhow::bail!(
-            "{}: --labels: the labels are a pinhole camera's and the scene's camera has camera.distortion",
-            scene_path.display()
-        );
-    }
     if let Some(d) = caps_per_pixel {
         scene.render.caps_per_pixel = Some(d);
         scene.render.check()?;
@@ -86,7 +80,8 @@ pub fn render(
         .with_context(|| format!("writing {}", out.display()))?;
     if labels {
         let epoch = optistim::scene::epoch_text(scene_path)?;
-        let mut l = optistim::labels::compute(pin, &scene.state, scene.body.radius, epoch);
+        let mut l =
+            optistim::labels::compute_for(&scene.camera, &scene.state, scene.body.radius, epoch)?;
         optistim::labels::add_stars(&mut l, &scene);
         optistim::labels::files::write(out, &l, "dn.png")
             .with_context(|| format!("writing labels into {}", out.display()))?;
@@ -137,7 +132,8 @@ fn plan_settings(
         .plan(target, source)
         .with_context(|| format!("{}", scene_path.display()))?;
     tracing::info!(
-        "planned for interior p99 <= {target:e}: {} (measured {:.2e}, flux {:.1e}; planning {:.0} ms)",
+        "planned for {} p99 <= {target:e}: {} (measured {:.2e}, flux {:.1e}; planning {:.0} ms)",
+        plan.judged,
         plan.label,
         plan.predicted_pixel_error,
         plan.predicted_flux_error,

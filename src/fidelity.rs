@@ -173,9 +173,13 @@ pub struct Plan {
     pub step: usize,
     pub label: String,
     pub settings: RenderSettings,
-    /// Its measured interior p99, all-pixel p99 and disk-flux error
-    /// against the converged render: the errors this render is predicted
-    /// to have.
+    /// Which pixels `predicted_pixel_error` is taken over: `"interior"`
+    /// (the pixels integrated per pixel) or `"disk"` (every disk pixel,
+    /// where the caps draw most of them).
+    pub judged: String,
+    /// Its measured p99 over the judged pixels, all-pixel p99 and
+    /// disk-flux error against the converged render: the errors this
+    /// render is predicted to have.
     pub predicted_pixel_error: f64,
     pub predicted_pixel_error_all: f64,
     pub predicted_flux_error: f64,

@@ -11,6 +11,13 @@
 //! disk's interior) above [`PIXEL_FLOOR`] of the peak. Edge pixels (limb,
 //! terminator) come from the lune's caps at the scene's density, which no
 //! step changes; their p99 is reported beside it.
+//!
+//! Where the caps draw most of the disk (a displaced relief, `geometry =
+//! "distant"`, `interior = "caps"`: fewer than [`MIN_INTERIOR_SHARE`] of
+//! its pixels are interior), the interior says nothing about the image:
+//! the whole disk's p99 is planned on instead, the ladder gains a step at
+//! [`CAPS_STEP_DENSITY`] caps per pixel, and the converged render takes
+//! [`CAPS_REFERENCE_DENSITY`].
 
 use std::time::Instant;
 
@@ -18,7 +25,7 @@ use crate::error::{Error, Result};
 use crate::fidelity::{self, Step};
 pub use crate::fidelity::{Plan, StepMeasure};
 use crate::render::Renderer;
-use crate::render_settings::check_pixel_error_target;
+use crate::render_settings::{check_pixel_error_target, RenderSettings};
 use crate::scene::Scene;
 
 /// Pixels below this fraction of the reference's peak are left out of
@@ -32,6 +39,46 @@ pub const PIXEL_FLOOR: f32 = 0.01;
 /// measures the planner against that render).
 pub const REFERENCE_PARTS: usize = 4;
 
+/// Share of the disk's pixels that must be interior for the interior p99
+/// to be the planned error.
+pub const MIN_INTERIOR_SHARE: f64 = 0.5;
+
+/// Caps per pixel and axis of the step added above the scene's own where
+/// the caps draw the disk: half the converged render's.
+pub const CAPS_STEP_DENSITY: f64 = 2.0;
+
+/// Caps per pixel and axis of the converged render where the caps draw
+/// the disk. On `configs/moon_relief.toml` (relief at 30°, every pixel
+/// from caps) 1, 2 and 4 caps per pixel are 20 %, 8.3 % and 2.6 % (p99)
+/// off a render at 6 (BENCHMARKS.md, "Relief: per-pixel error").
+pub const CAPS_REFERENCE_DENSITY: f64 = 4.0;
+
+/// Which pixels the planned error is taken over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Judged {
+    /// The pixels integrated per pixel.
+    Interior,
+    /// Every disk pixel above the floor (the caps draw most of them).
+    Disk,
+}
+
+impl Judged {
+    pub fn name(self) -> &'static str {
+        match self {
+            Judged::Interior => "interior",
+            Judged::Disk => "disk",
+        }
+    }
+
+    /// The planned error of a measured step.
+    pub fn error(self, m: &StepMeasure) -> f64 {
+        match self {
+            Judged::Interior => m.interior_pixel_error_p99,
+            Judged::Disk => m.pixel_error_p99,
+        }
+    }
+}
+
 /// A ladder on one scene with its converged render, each step measured
 /// once when first asked for.
 pub struct Planner<'a> {
@@ -39,30 +86,50 @@ pub struct Planner<'a> {
     renderer: Renderer,
     ladder: Vec<Step>,
     reference: Vec<f32>,
+    judged: Judged,
     measured: Vec<Option<StepMeasure>>,
     spent: f64,
 }
 
 impl<'a> Planner<'a> {
     /// Renders `scene`'s converged reference (the ladder on the scene's
-    /// own `[render]` settings).
+    /// own `[render]` settings). A render at the scene's settings first
+    /// tells whether the interior or the caps draw its disk.
     pub fn new(scene: &'a Scene) -> Planner<'a> {
         let t = Instant::now();
         let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+        renderer.render_flux(&scene.body, &scene.state, &scene.render, None);
+        let judged = if interior_share(&renderer) >= MIN_INTERIOR_SHARE {
+            Judged::Interior
+        } else {
+            Judged::Disk
+        };
         let mut reference_settings = fidelity::reference_settings(&scene.render);
         reference_settings.texture_samples = REFERENCE_PARTS;
+        let mut ladder = fidelity::planner_ladder(&scene.render);
+        if judged == Judged::Disk {
+            reference_settings.caps_per_pixel = Some(caps_reference_density(&scene.render));
+            if scene.render.density() < CAPS_STEP_DENSITY {
+                ladder.insert(0, caps_step(&scene.render));
+            }
+        }
         renderer.render_flux(&scene.body, &scene.state, &reference_settings, None);
         let reference = renderer.flux().to_vec();
-        let ladder = fidelity::planner_ladder(&scene.render);
         let measured = vec![None; ladder.len()];
         Planner {
             scene,
             renderer,
             ladder,
             reference,
+            judged,
             measured,
             spent: t.elapsed().as_secs_f64(),
         }
+    }
+
+    /// Which pixels the planned error is taken over.
+    pub fn judged(&self) -> Judged {
+        self.judged
     }
 
     /// The ladder, finest first.
@@ -113,7 +180,7 @@ impl<'a> Planner<'a> {
         let mut chosen = None;
         for i in (0..self.ladder.len()).rev() {
             let m = self.measure(i);
-            let meets = m.interior_pixel_error_p99 <= target;
+            let meets = self.judged.error(&m) <= target;
             tried.push(m);
             if meets {
                 chosen = Some(i);
@@ -125,8 +192,10 @@ impl<'a> Planner<'a> {
             return Err(Error::invalid(
                 source,
                 format!(
-                    "{target:e} is below what the finest setting reaches on this scene ({}: interior p99 {:.2e})",
-                    finest.label, finest.interior_pixel_error_p99
+                    "{target:e} is below what the finest setting reaches on this scene ({}: {} p99 {:.2e})",
+                    finest.label,
+                    self.judged.name(),
+                    self.judged.error(&finest)
                 ),
             ));
         };
@@ -136,39 +205,87 @@ impl<'a> Planner<'a> {
     fn report(&self, i: usize, target: f64, source: &str, tried: Vec<StepMeasure>) -> Plan {
         let m = tried.last().expect("the chosen step was measured").clone();
         let coarser = tried.len().checked_sub(2).map(|k| &tried[k]);
-        let why = match coarser {
+        let (judged, error) = (self.judged.name(), |m: &StepMeasure| self.judged.error(m));
+        let mut why = match coarser {
             Some(c) => format!(
-                "{} is the cheapest of the {} settings whose interior p99 against a converged render ({:.2e}) meets {target:e}; the next cheaper, {}, measured {:.2e}",
+                "{} is the cheapest of the {} settings whose {judged} p99 against a converged render ({:.2e}) meets {target:e}; the next cheaper, {}, measured {:.2e}",
                 m.label,
                 self.ladder.len(),
-                m.interior_pixel_error_p99,
+                error(&m),
                 c.label,
-                c.interior_pixel_error_p99
+                error(c)
             ),
             None => format!(
-                "{} is the cheapest of the {} settings and its interior p99 against a converged render ({:.2e}) meets {target:e}",
+                "{} is the cheapest of the {} settings and its {judged} p99 against a converged render ({:.2e}) meets {target:e}",
                 m.label,
                 self.ladder.len(),
-                m.interior_pixel_error_p99
+                error(&m)
             ),
         };
+        if self.judged == Judged::Disk {
+            why.push_str(&format!(
+                "; judged over the whole disk: fewer than {:.0} % of its pixels are interior (the caps draw it)",
+                MIN_INTERIOR_SHARE * 100.0
+            ));
+        }
         Plan {
             max_pixel_error: target,
             source: source.to_string(),
             step: i,
             label: m.label.clone(),
             settings: self.ladder[i].settings.clone(),
-            predicted_pixel_error: m.interior_pixel_error_p99,
+            judged: judged.to_string(),
+            predicted_pixel_error: error(&m),
             predicted_pixel_error_all: m.pixel_error_p99,
             predicted_flux_error: m.flux_error,
             why,
             ladder: self.ladder.iter().map(|s| s.label.clone()).collect(),
             measured: tried,
-            reference_caps_per_pixel: fidelity::REFERENCE_DENSITY,
+            reference_caps_per_pixel: match self.judged {
+                Judged::Interior => fidelity::REFERENCE_DENSITY,
+                Judged::Disk => caps_reference_density(&self.scene.render),
+            },
             reference_map_parts: REFERENCE_PARTS,
             planning_ms: self.spent * 1e3,
         }
     }
+}
+
+/// Share of the last render's lit pixels (flux above [`PIXEL_FLOOR`] of
+/// its peak) that were integrated per pixel.
+fn interior_share(renderer: &Renderer) -> f64 {
+    let flux = renderer.flux();
+    let width = renderer.camera().width;
+    let peak = flux.iter().copied().fold(0.0f32, f32::max);
+    let lit = flux
+        .iter()
+        .enumerate()
+        .filter(|&(_, &v)| v > PIXEL_FLOOR * peak);
+    let (mut n, mut interior) = (0usize, 0usize);
+    for (k, _) in lit {
+        n += 1;
+        interior += usize::from(renderer.is_interior_pixel(k % width, k / width));
+    }
+    if n == 0 {
+        return 1.0;
+    }
+    interior as f64 / n as f64
+}
+
+/// The scene's settings at [`CAPS_STEP_DENSITY`] caps per pixel.
+fn caps_step(base: &RenderSettings) -> Step {
+    let mut settings = base.clone();
+    settings.caps_per_pixel = Some(CAPS_STEP_DENSITY);
+    Step {
+        label: format!("{CAPS_STEP_DENSITY} caps per pixel"),
+        settings,
+    }
+}
+
+/// The converged render's caps per pixel where the caps draw the disk:
+/// [`CAPS_REFERENCE_DENSITY`], or twice the scene's own if that is more.
+fn caps_reference_density(base: &RenderSettings) -> f64 {
+    CAPS_REFERENCE_DENSITY.max(2.0 * base.density())
 }
 
 /// The target of a render: `flag` (`--max-pixel-error`) if given, else

@@ -63,6 +63,10 @@ pub struct RenderSettings {
     /// out of the field ([`crate::render::field`]) instead of stopping with
     /// an error.
     pub allow_empty: bool,
+    /// Interior pixels a cast shadow's edge crosses take the mean shadow
+    /// factor over 4 × 4 points of the pixel ([`crate::render::shadow_edges`]);
+    /// `false` keeps their centre's 0 or 1 (faster, aliased edges).
+    pub shadow_edges: bool,
     /// Target per-pixel error (interior p99 against a converged render):
     /// `optistim render` and `bench` then choose the cheapest settings of
     /// the planner's ladder that meet it ([`crate::planner`]), in place of
@@ -103,6 +107,7 @@ impl Default for RenderSettings {
             node_spacing: DEFAULT_NODE_SPACING,
             pixel_tolerance: DEFAULT_PIXEL_TOLERANCE,
             allow_empty: false,
+            shadow_edges: true,
             max_pixel_error: None,
         }
     }

@@ -195,25 +195,6 @@ fn a_lens_file_that_disagrees_with_the_camera_is_a_one_line_error() {
     assert!(e.contains("256×250"), "{e}");
 }
 
-/// A dataset's labels are the pinhole camera's: a spec asking for them
-/// with a lens is refused, naming the key; images alone are accepted.
-#[test]
-fn a_dataset_with_a_lens_refuses_labels() {
-    let dir = lens_dir("dataset", DIST);
-    std::fs::write(dir.join("scene.toml"), scene_text(0.0, 0.0, 4)).unwrap();
-    let spec = |outputs: &str| {
-        format!(
-            "[dataset]\nscene = \"scene.toml\"\ncount = 2\nseed = 1\nout = \"out\"\noutputs = {outputs}\n\n[poses]\ndistance = [900.0, 1100.0]\nphase_deg = [0.0, 30.0]\n"
-        )
-    };
-    let path = dir.join("spec.toml");
-    let e = optistim::dataset::Spec::from_toml(&spec("[\"image\", \"labels\"]"), &path, None)
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("dataset.outputs") && !e.contains('\n'), "{e}");
-    optistim::dataset::Spec::from_toml(&spec("[\"image\"]"), &path, None).expect("images only");
-}
-
 /// The lens's ideal grid and tables count in the memory bound, checked
 /// before anything is allocated: a 6000 × 6000 camera passes alone
 /// (1.6 GiB of images) but not with a lens (about 4.6 GiB).
@@ -236,30 +217,6 @@ fn a_lens_beyond_the_memory_bound_is_refused_up_front() {
         .replace("distortion = \"intrinsics.toml\"\n", "")
         .replace("distortion_supersample = 4\n", "");
     Scene::from_toml(&plain, &dir.join("scene.toml")).expect("the camera alone fits");
-}
-
-/// `optistim render --labels` refuses a lens the same way, in one line,
-/// before writing anything.
-#[test]
-fn render_labels_with_a_lens_are_refused() {
-    let dir = lens_dir("cli", DIST);
-    std::fs::write(dir.join("scene.toml"), scene_text(0.0, 0.0, 4)).unwrap();
-    let out = dir.join("render-out");
-    let run = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
-        .arg("render")
-        .arg(dir.join("scene.toml"))
-        .arg("--out")
-        .arg(&out)
-        .arg("--labels")
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&run.stderr);
-    assert!(!run.status.success(), "{stderr}");
-    assert!(
-        stderr.contains("camera.distortion") && stderr.trim().lines().count() == 1,
-        "{stderr}"
-    );
-    assert!(!out.join("dn.png").exists());
 }
 
 /// A star seen through the lens lands where OpenCV's formula puts its

@@ -5,6 +5,12 @@
 //! (the lune's caps at 6 × 6 per pixel, exact map means: twice the
 //! planner's own reference density per axis); looser targets get strictly
 //! cheaper settings; bad targets are one-line errors naming the key.
+//! On the relief Moon (`configs/moon_relief.toml`, displaced: the caps
+//! draw every pixel) the planner judges the whole disk, not an empty
+//! interior, and its choice meets the target against the same kind of
+//! independent converged render.
+
+mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -54,6 +60,63 @@ fn interior_p99(image: &[f32], truth: &[f32], renderer: &Renderer) -> f64 {
     e.sort_by(f64::total_cmp);
     let rank = (0.99 * e.len() as f64).ceil() as usize - 1;
     e[rank]
+}
+
+/// The 99th percentile (nearest rank) of |image / truth − 1| over every
+/// pixel whose truth is above 1 % of its peak.
+fn disk_p99(image: &[f32], truth: &[f32]) -> f64 {
+    let e = common::sorted_relative_errors(image, truth);
+    assert!(e.len() > 5_000, "{} disk pixels", e.len());
+    common::nearest_rank(&e, 0.99)
+}
+
+/// The relief Moon at 384 px (a pixel covers about three DEM cells):
+/// displaced, so no pixel is interior. Before the planner judged the
+/// disk, it measured an empty interior (p99 0) and kept the scene's own
+/// single cap per pixel, 29 % off; now the target must be met over the
+/// disk.
+#[test]
+fn where_the_caps_draw_the_disk_the_planner_judges_the_disk() {
+    let path = root().join("configs/moon_relief.toml");
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("resolution = [1024, 1024]", "resolution = [384, 384]");
+    let scene = Scene::from_toml(&text, &path).unwrap();
+    assert_eq!(scene.camera.pinhole.width, 384);
+    let truth = converged(&scene);
+    let render = |settings| {
+        let mut r = Renderer::new(scene.camera.pinhole.clone());
+        r.render_flux(&scene.body, &scene.state, settings, None);
+        assert!(
+            (0..384 * 384).all(|k| !r.is_interior_pixel(k % 384, k / 384)),
+            "a displaced relief has no interior pixel"
+        );
+        disk_p99(r.flux(), &truth)
+    };
+    let target = 0.25;
+    let own = render(&scene.render);
+    assert!(own > target, "the scene's own settings: disk p99 {own:.3}");
+    let mut planner = Planner::new(&scene);
+    let plan = planner.plan(target, "--max-pixel-error").unwrap();
+    let measured = render(&plan.settings);
+    println!(
+        "relief: own settings {own:.3}; planned {} predicted {:.3} measured {measured:.3}",
+        plan.label, plan.predicted_pixel_error
+    );
+    assert_eq!(plan.judged, "disk");
+    assert!(measured <= target, "{} measured {measured:.3}", plan.label);
+    assert!(
+        (0.5..=2.0).contains(&(plan.predicted_pixel_error / measured)),
+        "predicted {:.3} measured {measured:.3}",
+        plan.predicted_pixel_error
+    );
+    // A target below what its finest step reaches is refused, not met by
+    // an empty interior.
+    let err = planner
+        .plan(0.02, "--max-pixel-error")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("disk p99"), "{err}");
 }
 
 #[test]

@@ -8,7 +8,9 @@
 //! checked against an exact evaluation written in this test: the pixel
 //! centre's ray–sphere hit, the local Sun elevation and azimuth, and the
 //! horizon map's public lookup. Rough terrain, grazing Suns at the
-//! terminator, random body attitudes and a pole in view.
+//! terminator, random body attitudes, a pole in view and under the camera
+//! (near a pole the Sun comes from the polar nodes, `render::polar_sun`),
+//! and the bundled close-range polar view with the LOLA DEM.
 
 mod common;
 use common::*;
@@ -31,8 +33,10 @@ const R: f64 = 1000.0;
 /// were made exact the factor was off by 2.6e-3 there, at a slope of
 /// ~120 per radian). Lit or dark by the interpolated geometry, the exact
 /// factor is within 0.6 (Δ/ρ)^{3/2} ≈ 2e-4 of it (the disk share's ends
-/// are flat, ρ = 4.65 mrad); the two f32 images add ~3e-7. Measured:
-/// ≤ 1e-7 in every case below.
+/// are flat, ρ = 4.65 mrad); the two f32 images add ~3e-7. Shadow-edge
+/// pixels carry the mean of 4 × 4 exact factors over the pixel
+/// (`render::shadow_edges`), recomputed here the same way; an edge
+/// pixel's unshadowed flux is recovered from the f32 image.
 const MAX_FACTOR_ERROR: f64 = 3e-4;
 
 /// Rough terrain: a sum of incommensurate ridges, ±30 m on a 1 km body
@@ -58,20 +62,80 @@ fn rough() -> Vec<f32> {
 fn exact_factor(
     scene: &optistim::scene::Scene,
     map: &HorizonMap,
+    radius: f64,
     i: usize,
     j: usize,
 ) -> Option<f64> {
+    exact_factor_at(scene, map, radius, i as f64 + 0.5, j as f64 + 0.5)
+}
+
+/// Points per axis over which the render averages a shadow-edge pixel's
+/// factor (`render::shadow_edges`).
+const EDGE_POINTS: usize = 4;
+
+/// The factor pixel k should carry: its centre's, or where the shadow's
+/// edge crosses it (its centre in the penumbra, or an interior
+/// neighbour's centre factor different, and for a centre wholly lit or
+/// dark a 2 × 2 probe disagreeing) the mean of [`EDGE_POINTS`]² exact
+/// factors over the pixel.
+fn pixel_factor(
+    scene: &optistim::scene::Scene,
+    map: &HorizonMap,
+    radius: f64,
+    centre: &[Option<f64>],
+    k: usize,
+) -> f64 {
+    let width = scene.camera.pinhole.width;
+    let (i, j) = (k % width, k / width);
+    let s = centre[k].expect("an interior pixel hits the sphere");
+    let height = centre.len() / width;
+    let neighbour_differs = (j.saturating_sub(1)..=(j + 1).min(height - 1)).any(|jj| {
+        (i.saturating_sub(1)..=(i + 1).min(width - 1))
+            .any(|ii| centre[jj * width + ii].is_some_and(|n| (n - s).abs() > 1e-6))
+    });
+    let penumbra = s > 0.0 && s < 1.0;
+    if !penumbra && !neighbour_differs {
+        return s;
+    }
+    // Wholly lit or dark at the centre and at 2 × 2 probes: the edge
+    // passed beside the pixel.
+    let probe = |a: f64, b: f64| {
+        exact_factor_at(scene, map, radius, i as f64 + a, j as f64 + b).unwrap_or(0.0)
+    };
+    if !penumbra
+        && [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
+            .iter()
+            .all(|&(a, b)| probe(a, b) == s)
+    {
+        return s;
+    }
+    let n = EDGE_POINTS;
+    let mut sum = 0.0;
+    for b in 0..n {
+        for a in 0..n {
+            let u = i as f64 + (a as f64 + 0.5) / n as f64;
+            let v = j as f64 + (b as f64 + 0.5) / n as f64;
+            sum += exact_factor_at(scene, map, radius, u, v).unwrap_or(0.0);
+        }
+    }
+    sum / (n * n) as f64
+}
+
+/// The exact factor at continuous pixel position (u, v).
+fn exact_factor_at(
+    scene: &optistim::scene::Scene,
+    map: &HorizonMap,
+    radius: f64,
+    u: f64,
+    v: f64,
+) -> Option<f64> {
     let pin = &scene.camera.pinhole;
     let st = &scene.state;
-    let d_cam = DVec3::new(
-        (i as f64 + 0.5 - pin.cx) / pin.fx,
-        (j as f64 + 0.5 - pin.cy) / pin.fy,
-        1.0,
-    );
+    let d_cam = DVec3::new((u - pin.cx) / pin.fx, (v - pin.cy) / pin.fy, 1.0);
     let d = (st.camera_attitude * d_cam).normalize();
     let c = st.camera_position - st.body_position;
     let b = d.dot(c);
-    let disc = b * b - (c.length_squared() - R * R);
+    let disc = b * b - (c.length_squared() - radius * radius);
     if disc <= 0.0 {
         return None;
     }
@@ -127,6 +191,15 @@ fn lattice_shadow_factor_matches_the_exact_factor() {
     for (alpha, k) in [(60.0, 1), (88.0, 2), (105.0, 3)] {
         cases.push((alpha, random(k), "random attitude"));
     }
+    for (alpha, pole) in [(85.0f64, DVec3::Z), (95.0, -DVec3::Z)] {
+        // A pole under the camera, the Sun 5° above or below its horizon.
+        let camera = DVec3::new(alpha.to_radians().cos(), alpha.to_radians().sin(), 0.0);
+        cases.push((
+            alpha,
+            DQuat::from_rotation_arc(pole, camera),
+            "pole-centred",
+        ));
+    }
     for alpha in [50.0f64, 100.0] {
         // The north pole between the Sun (+x) and the camera.
         let half = (0.5 * alpha).to_radians();
@@ -146,48 +219,133 @@ fn lattice_shadow_factor_matches_the_exact_factor() {
         // One point per pixel, so a pixel's shadow is its centre's.
         let mut settings = scene.render.clone();
         settings.pixel_tolerance = f64::INFINITY;
-        let mut renderer = Renderer::new(scene.camera.pinhole.clone());
-        let shadowed = renderer.render_flux(&scene.body, &scene.state, &settings, None);
-        assert!(shadowed.shadows.is_some_and(|d| d.applied));
-        let with: Vec<f32> = renderer.flux().to_vec();
-        let interior: Vec<bool> = (0..with.len())
-            .map(|k| renderer.is_interior_pixel(k % setup.resolution[0], k / setup.resolution[0]))
-            .collect();
-        let mut plain_body = scene.body.clone();
-        plain_body.relief.shadows = None;
-        let plain = renderer.render_flux(&plain_body, &scene.state, &settings, None);
-        let without = renderer.flux();
-        let direct = plain.interior_direct;
-        let lattice = plain.interior_pixels - direct.midpoint - direct.gauss2 - direct.gauss4;
+        let checked = check_factors(&scene, &settings, &map, R, what);
         assert!(
-            lattice * 5 > plain.interior_pixels,
-            "{what}, α {alpha}: only {lattice} of {} interior pixels interpolated",
-            plain.interior_pixels
+            checked.lattice * 5 > checked.interior,
+            "{what}, α {alpha}: only {} of {} interior pixels interpolated",
+            checked.lattice,
+            checked.interior
         );
-        let (mut worst, mut compared, mut partial, mut dark) = (0.0f64, 0usize, 0usize, 0usize);
-        for (k, (&a, &b)) in with.iter().zip(without).enumerate() {
-            if !interior[k] || b <= 0.0 {
-                continue;
-            }
-            let (i, j) = (k % setup.resolution[0], k / setup.resolution[0]);
-            let want = exact_factor(&scene, &map, i, j).expect("an interior pixel hits the sphere");
-            let got = a as f64 / b as f64;
-            worst = worst.max((got - want).abs());
-            compared += 1;
-            partial += usize::from(want > 0.0 && want < 1.0);
-            dark += usize::from(want == 0.0);
+        // The polar cap (latitude ≥ 64°) is a fifth of the disk's
+        // area seen from over the pole, the lit half of it at 85–95°.
+        if what == "pole-centred" {
+            assert!(
+                checked.polar * 10 > checked.interior,
+                "{what}, α {alpha}: only {} of {} shadows from polar nodes",
+                checked.polar,
+                checked.interior
+            );
         }
-        println!(
-            "{what}, α {alpha}°: {compared} interior pixels ({lattice} interpolated), {partial} in penumbra, {dark} dark; worst |Δ factor| {worst:.2e}"
-        );
-        assert!(compared > 10_000, "{what}: {compared}");
-        assert!(
-            dark + partial > compared / 50,
-            "{what}: too few shadows to test"
-        );
-        assert!(
-            worst <= MAX_FACTOR_ERROR,
-            "{what}, α {alpha}°: factor off by {worst:e}"
-        );
+    }
+}
+
+/// The bundled close-range view (`configs/moon_close_shadows.toml`: the
+/// camera 1.05 R over a pole, the LOLA DEM, an albedo map) turned to
+/// phase 88° as `optistim bench --shadows --phases 88` turns it: the Sun
+/// grazes the terminator in the frame, the albedo's lattice is off (near
+/// the pole) and the shadows come from the polar nodes; every interior
+/// pixel's factor agrees with the exact one.
+#[test]
+fn close_range_polar_view_matches_the_exact_factor() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/moon_close_shadows.toml");
+    let mut scene = optistim::scene::Scene::from_file(&path).unwrap();
+    // The bench's `at_phase`: the camera turned from the Sun by the phase
+    // about an axis normal to it, looking at the centre.
+    let st = &mut scene.state;
+    let range = (st.camera_position - st.body_position).length();
+    let sun_dir = (st.sun_position - st.body_position).normalize();
+    let view =
+        DQuat::from_axis_angle(sun_dir.any_orthonormal_vector(), 88f64.to_radians()) * sun_dir;
+    st.camera_position = st.body_position + view * range;
+    let boresight = -view;
+    let x = boresight.cross(DVec3::Z).normalize();
+    let y = boresight.cross(x);
+    st.camera_attitude = DQuat::from_mat3(&glam::DMat3::from_cols(x, y, boresight)).normalize();
+    let shadows = scene
+        .body
+        .relief
+        .shadows
+        .clone()
+        .expect("the config casts shadows");
+    let mut settings = scene.render.clone();
+    settings.pixel_tolerance = f64::INFINITY;
+    let radius = scene.body.radius;
+    let checked = check_factors(&scene, &settings, &shadows.map, radius, "close range");
+    assert!(
+        checked.polar * 2 > checked.interior,
+        "only {} of {} shadows from polar nodes",
+        checked.polar,
+        checked.interior
+    );
+}
+
+/// What [`check_factors`] counted.
+struct Checked {
+    interior: usize,
+    /// Interior pixels whose unshadowed flux came from the lattice.
+    lattice: usize,
+    /// Interior pixels whose shadow came from the polar nodes.
+    polar: usize,
+}
+
+/// Renders `scene` with and without its shadows and checks every interior
+/// pixel's applied factor (the ratio of the two) against
+/// [`exact_factor`] within [`MAX_FACTOR_ERROR`].
+fn check_factors(
+    scene: &optistim::scene::Scene,
+    settings: &optistim::render::RenderSettings,
+    map: &HorizonMap,
+    radius: f64,
+    what: &str,
+) -> Checked {
+    let width = scene.camera.pinhole.width;
+    let mut renderer = Renderer::new(scene.camera.pinhole.clone());
+    let shadowed = renderer.render_flux(&scene.body, &scene.state, settings, None);
+    assert!(shadowed.shadows.is_some_and(|d| d.applied));
+    let with: Vec<f32> = renderer.flux().to_vec();
+    let interior: Vec<bool> = (0..with.len())
+        .map(|k| renderer.is_interior_pixel(k % width, k / width))
+        .collect();
+    let mut plain_body = scene.body.clone();
+    plain_body.relief.shadows = None;
+    let plain = renderer.render_flux(&plain_body, &scene.state, settings, None);
+    let without = renderer.flux();
+    let direct = plain.interior_direct;
+    let lattice = plain.interior_pixels - direct.midpoint - direct.gauss2 - direct.gauss4;
+    let centre: Vec<Option<f64>> = (0..with.len())
+        .map(|k| {
+            interior[k]
+                .then(|| exact_factor(scene, map, radius, k % width, k / width))
+                .flatten()
+        })
+        .collect();
+    let (mut worst, mut compared, mut partial, mut dark) = (0.0f64, 0usize, 0usize, 0usize);
+    for (k, (&a, &b)) in with.iter().zip(without).enumerate() {
+        if !interior[k] || b <= 0.0 {
+            continue;
+        }
+        let want = pixel_factor(scene, map, radius, &centre, k);
+        let got = a as f64 / b as f64;
+        worst = worst.max((got - want).abs());
+        compared += 1;
+        partial += usize::from(want > 0.0 && want < 1.0);
+        dark += usize::from(want == 0.0);
+    }
+    let polar = shadowed.interior_direct.shadow_polar;
+    println!(
+        "{what}, phase {:.0}°: {compared} interior pixels ({lattice} interpolated, {polar} shadows from polar nodes), {partial} in penumbra, {dark} dark; worst |Δ factor| {worst:.2e}",
+        shadowed.phase_angle.to_degrees()
+    );
+    assert!(compared > 10_000, "{what}: {compared}");
+    assert!(
+        dark + partial > compared / 50,
+        "{what}: too few shadows to test"
+    );
+    assert!(worst <= MAX_FACTOR_ERROR, "{what}: factor off by {worst:e}");
+    Checked {
+        interior: plain.interior_pixels,
+        lattice,
+        polar,
     }
 }

@@ -32,6 +32,11 @@ struct ShadowRow {
     ratio_p10: f64,
     ratio_p90: f64,
     interior_pixels: usize,
+    /// How the interior pixels' shadows were taken (the last render with
+    /// shadows): wholly dark (flux skipped), from the polar nodes, exact.
+    dark_pixels: usize,
+    polar_pixels: usize,
+    exact_pixels: usize,
 }
 
 /// The horizon map's one-time cost [s].
@@ -97,6 +102,7 @@ pub fn bench_shadows(
         let (mut t_off, mut t_on, mut i_off, mut i_on, mut ratios) =
             (vec![], vec![], vec![], vec![], vec![]);
         let mut interior_pixels = 0;
+        let mut paths = optistim::render::interior::DirectCounts::default();
         // One warm-up of each, untimed.
         for body in [&on, &off] {
             renderer.render_flux(body, &scene.state, settings, None);
@@ -118,6 +124,7 @@ pub fn bench_shadows(
                 } else {
                     t_on.push(ms);
                     i_on.push(interior);
+                    paths = stats.interior_direct;
                 }
             }
             ratios.push(pair[1] / pair[0]);
@@ -132,6 +139,9 @@ pub fn bench_shadows(
             ratio_p10: percentile(&mut ratios, 0.1),
             ratio_p90: percentile(&mut ratios, 0.9),
             interior_pixels,
+            dark_pixels: paths.dark,
+            polar_pixels: paths.shadow_polar,
+            exact_pixels: paths.shadow_exact,
         };
         println!(
             "| {:.0} | {} | {:.2} | {:.2} | {:.2} / {:.2} | {:.3} | {:.3} – {:.3} |",
@@ -146,6 +156,12 @@ pub fn bench_shadows(
             row.ratio_p90
         );
         rows.push(row);
+    }
+    for row in &rows {
+        println!(
+            "phase {:.0}: interior shadows {} dark (flux skipped), {} from polar nodes, {} exact (no lattice, or penumbra)",
+            row.phase_deg, row.dark_pixels, row.polar_pixels, row.exact_pixels
+        );
     }
     let one_time = horizon_cost(&shadows)?;
     println!(

@@ -166,8 +166,13 @@ impl Worker {
         }
         if spec.outputs.labels {
             let mut l = self.pool.install(|| {
-                labels::compute(&pin, &item.state, scene.body.radius, spec.epoch.clone())
-            });
+                labels::compute_for(
+                    &scene.camera,
+                    &item.state,
+                    scene.body.radius,
+                    spec.epoch.clone(),
+                )
+            })?;
             labels::add_stars(&mut l, &scene);
             let image = if spec.outputs.image { "dn.png" } else { "" };
             labels::files::write(dir, &l, image)?;

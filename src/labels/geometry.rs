@@ -105,6 +105,20 @@ fn symmetric_eigen(a: f64, b: f64, d: f64) -> (f64, f64, f64) {
 /// `n` points evenly spaced on the sphere's limb (the circle where the
 /// camera's rays graze it), projected; those behind the camera left out.
 pub fn limb_points(camera: &Pinhole, centre_cam: DVec3, radius: f64, n: usize) -> Vec<[f64; 2]> {
+    let d = centre_cam.length();
+    limb_circle(centre_cam, radius, n)
+        .into_iter()
+        .filter(|p| p.z > 1e-9 * d)
+        .map(|p| {
+            let (u, v) = camera.project(p);
+            [u, v]
+        })
+        .collect()
+}
+
+/// `n` points evenly spaced on the sphere's limb circle (camera frame);
+/// empty when the camera is inside the sphere.
+pub fn limb_circle(centre_cam: DVec3, radius: f64, n: usize) -> Vec<DVec3> {
     let d2 = centre_cam.length_squared();
     if d2 <= radius * radius {
         return Vec::new();
@@ -116,10 +130,5 @@ pub fn limb_points(camera: &Pinhole, centre_cam: DVec3, radius: f64, n: usize) -
     (0..n)
         .map(|k| std::f64::consts::TAU * k as f64 / n as f64)
         .map(|t| circle_centre + circle_radius * (t.cos() * e1 + t.sin() * e2))
-        .filter(|p| p.z > 1e-9 * d2.sqrt())
-        .map(|p| {
-            let (u, v) = camera.project(p);
-            [u, v]
-        })
         .collect()
 }

@@ -4,12 +4,15 @@
 //! pixel centre, and the body's projected disk (centre, limb ellipse, radius,
 //! limb points, bounding box) and the poses in closed form. [`files`] writes
 //! them (TIFF, `labels.json`, COCO); docs/DATASETS.md documents the formats.
+//! Through a lens ([`compute_through`]) the rays are the lens's undistorted
+//! pixel directions and the disk is distorted ([`lens`]).
 //!
 //! The body is the reference sphere of radius `body.radius`: a displacement
 //! map moves the rendered limb by its heights, the labels do not.
 
 pub mod files;
 pub mod geometry;
+pub mod lens;
 
 use glam::{DQuat, DVec3};
 use rayon::prelude::*;
@@ -162,19 +165,66 @@ pub struct Labels {
 /// Computes the labels of the frame `camera` sees of a sphere of `radius`
 /// in `state`.
 pub fn compute(camera: &Pinhole, state: &State, radius: f64, epoch: Option<String>) -> Labels {
-    let images = pixel_labels(camera, state, radius);
+    let images = pixel_labels(camera.width, camera.height, state, radius, |i, j| {
+        Some(camera.pixel_direction(i, j))
+    });
+    let disk = disk(camera, state, radius, &images.body);
+    frame_labels(images, disk, state, radius, epoch)
+}
+
+/// Computes the labels of the frame a camera with `lens` sees: each
+/// pixel centre's ray is the direction the lens undistorts it to (the
+/// render's own, [`crate::optics::distortion::Resampler`]), and the disk's
+/// centre, limb points and box are distorted through the lens
+/// ([`lens::disk`]).
+pub fn compute_through(
+    lens: &crate::optics::distortion::Lens,
+    state: &State,
+    radius: f64,
+    epoch: Option<String>,
+) -> crate::error::Result<Labels> {
+    let tables = lens.resampler()?;
+    let (w, h) = (lens.intrinsics.width, lens.intrinsics.height);
+    let images = pixel_labels(w, h, state, radius, |i, j| {
+        let d = tables.direction[j * w + i];
+        (d != DVec3::ZERO).then_some(d)
+    });
+    let disk = lens::disk(lens, state, radius, &images.body);
+    Ok(frame_labels(images, disk, state, radius, epoch))
+}
+
+/// The labels of the scene's camera, through its lens if it has one.
+pub fn compute_for(
+    camera: &crate::scene::Camera,
+    state: &State,
+    radius: f64,
+    epoch: Option<String>,
+) -> crate::error::Result<Labels> {
+    match &camera.distortion {
+        Some(lens) => compute_through(lens, state, radius, epoch),
+        None => Ok(compute(&camera.pinhole, state, radius, epoch)),
+    }
+}
+
+/// The record of a frame around its images and disk.
+fn frame_labels(
+    images: LabelImages,
+    disk: Disk,
+    state: &State,
+    radius: f64,
+    epoch: Option<String>,
+) -> Labels {
     let count = |m: &[u8]| m.iter().map(|&v| v as u64).sum();
     let pixel_counts = PixelCounts {
         body: count(&images.body),
         lit: count(&images.lit),
         shadow: count(&images.shadow),
     };
-    let disk = disk(camera, state, radius, &images.body);
     let to_sun = state.sun_position - state.body_position;
     let to_cam = state.camera_position - state.body_position;
     let frame = FrameLabels {
-        width: camera.width,
-        height: camera.height,
+        width: images.width,
+        height: images.height,
         epoch,
         poses: Poses {
             camera: Pose::new(state.camera_position, state.camera_attitude),
@@ -190,9 +240,15 @@ pub fn compute(camera: &Pinhole, state: &State, radius: f64, epoch: Option<Strin
     Labels { images, frame }
 }
 
-/// One ray per pixel centre against the sphere.
-fn pixel_labels(camera: &Pinhole, state: &State, radius: f64) -> LabelImages {
-    let (w, h) = (camera.width, camera.height);
+/// One ray per pixel centre against the sphere: pixel (i, j) looks along
+/// camera-frame `direction(i, j)` (None: it sees nothing).
+fn pixel_labels(
+    w: usize,
+    h: usize,
+    state: &State,
+    radius: f64,
+    direction: impl Fn(usize, usize) -> Option<DVec3> + Sync,
+) -> LabelImages {
     let mut images = LabelImages {
         width: w,
         height: h,
@@ -217,7 +273,10 @@ fn pixel_labels(camera: &Pinhole, state: &State, radius: f64) -> LabelImages {
     rows.enumerate().for_each(
         |(j, ((((((body, lit), shadow), depth), normals), lat), lon))| {
             for i in 0..w {
-                let dir = state.camera_attitude * camera.pixel_direction(i, j);
+                let Some(d) = direction(i, j) else {
+                    continue;
+                };
+                let dir = state.camera_attitude * d;
                 let Some(t) = ray_sphere(state.camera_position, dir, state.body_position, radius)
                 else {
                     continue;
@@ -278,10 +337,16 @@ fn disk(camera: &Pinhole, state: &State, radius: f64, mask: &[u8]) -> Disk {
 /// A box [x0, y0, x1, y1] clipped to the image, as [x, y, w, h]; None when
 /// nothing of it is inside.
 fn clip_box(b: [f64; 4], camera: &Pinhole) -> Option<[f64; 4]> {
+    clip_box_to(b, camera.width, camera.height)
+}
+
+/// A box [x0, y0, x1, y1] clipped to a `w × h` image, as [x, y, w, h];
+/// None when nothing of it is inside.
+fn clip_box_to(b: [f64; 4], w: usize, h: usize) -> Option<[f64; 4]> {
     let x0 = b[0].max(0.0);
     let y0 = b[1].max(0.0);
-    let x1 = b[2].min(camera.width as f64);
-    let y1 = b[3].min(camera.height as f64);
+    let x1 = b[2].min(w as f64);
+    let y1 = b[3].min(h as f64);
     (x1 > x0 && y1 > y0).then_some([x0, y0, x1 - x0, y1 - y0])
 }
 

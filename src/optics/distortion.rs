@@ -15,7 +15,8 @@
 //! pinhole grid with the camera's K extended to cover the distorted field,
 //! then resamples it with a [`Resampler`]: the same sampling, with each
 //! pixel's corners undistorted once per process and its sample points
-//! interpolated bilinearly between them. That moves a point by at most
+//! interpolated bilinearly between them, tabulated as a sparse linear map
+//! ([`super::lens_table`]). The interpolation moves a point by at most
 //! 1/8 of the map's second derivative over a pixel, ≈ (3/4)·|k1|·r/fx px
 //! at normalised radius r: 2·10⁻⁴ px at the corners of
 //! tests/render_distortion.rs's lens (k1 = −0.21, r = 0.45, fx = 300 px),
@@ -23,9 +24,10 @@
 
 use std::sync::Arc;
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
+use super::lens_table::{undistort_grid, WeightTable};
 use crate::error::{Error, Result};
 use crate::instruments::intrinsics::CameraIntrinsics;
 use crate::memo::Memo;
@@ -85,6 +87,22 @@ impl Lens {
         }
     }
 
+    /// The pixel (centres at +0.5) where the camera sees camera-frame
+    /// direction `d` through the lens (OpenCV's distortion); None behind
+    /// the camera or beyond the field the ideal grid covers, where the
+    /// polynomial is not the lens (it can fold back into the image).
+    pub fn project(&self, d: DVec3) -> Option<(f64, f64)> {
+        if !(d.z > 0.0) {
+            return None;
+        }
+        let (x, y) = self.ideal.project(d);
+        let inside = (0.0..=self.ideal.width as f64).contains(&x)
+            && (0.0..=self.ideal.height as f64).contains(&y);
+        inside
+            .then(|| self.intrinsics.direction_to_pixel(d))
+            .flatten()
+    }
+
     /// The lens's resampling tables, built once per process for the two
     /// most recent lenses.
     pub fn resampler(&self) -> Result<Arc<Resampler>> {
@@ -137,53 +155,50 @@ fn covering_pinhole(lens: &CameraIntrinsics) -> Result<Pinhole> {
 
 /// What resampling through one lens needs, per output pixel.
 pub struct Resampler {
-    width: usize,
-    height: usize,
-    supersample: usize,
-    /// The ideal grid the input images are on.
-    ideal: Pinhole,
-    /// Where each pixel corner lies in the ideal image (continuous pixel
-    /// coordinates), `(width + 1) × (height + 1)`; None where it does not
-    /// undistort.
-    corners: Vec<Option<(f64, f64)>>,
+    /// The resampling as a sparse linear map from the ideal grid's
+    /// images to the camera's.
+    pub table: WeightTable,
     /// Each pixel's solid angle [sr] ([`pixel_solid_angles`]).
     pub solid_angle: Vec<f32>,
     /// Each pixel centre's unit direction in the camera frame (zero where
     /// it does not undistort).
-    pub direction: Vec<[f32; 3]>,
+    pub direction: Vec<DVec3>,
+}
+
+/// Where each pixel corner of `lens` lies in its ideal image (continuous
+/// pixel coordinates), `(width + 1) × (height + 1)`, and its direction;
+/// None where it does not undistort.
+fn ideal_corners(lens: &Lens) -> Vec<Option<(DVec2, (f64, f64))>> {
+    let k = &lens.intrinsics;
+    let p = &lens.ideal;
+    undistort_grid(k, k.width + 1, k.height + 1, 0.0)
+        .into_par_iter()
+        .map(|m| m.map(|m| (m, (p.fx * m.x + p.cx, p.fy * m.y + p.cy))))
+        .collect()
 }
 
 impl Resampler {
     fn new(lens: &Lens) -> Result<Resampler> {
         let k = &lens.intrinsics;
         let (w, h) = (k.width, k.height);
-        let ideal = lens.ideal.clone();
-        let corner_dirs: Vec<Option<DVec3>> = (0..(w + 1) * (h + 1))
-            .into_par_iter()
-            .map(|c| k.pixel_to_direction((c % (w + 1)) as f64, (c / (w + 1)) as f64))
-            .collect();
-        let corners = corner_dirs
+        let corners = ideal_corners(lens);
+        let at: Vec<Option<(f64, f64)>> = corners.iter().map(|c| c.map(|c| c.1)).collect();
+        let ideal = (lens.ideal.width, lens.ideal.height);
+        let table = WeightTable::new(at, (w, h), ideal, lens.supersample)?;
+        let corner_dirs: Vec<Option<DVec3>> = corners
             .iter()
-            .map(|d| d.map(|d| ideal.project(d)))
+            .map(|c| c.map(|(m, _)| m.extend(1.0).normalize()))
             .collect();
-        let direction = (0..w * h)
+        let direction = undistort_grid(k, w, h, 0.5)
             .into_par_iter()
-            .map(|p| {
-                let (u, v) = ((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
-                k.pixel_to_direction(u, v)
-                    .map_or([0.0; 3], |d| [d.x as f32, d.y as f32, d.z as f32])
-            })
+            .map(|m| m.map_or(DVec3::ZERO, |m| m.extend(1.0).normalize()))
             .collect();
         let solid_angle = quad_solid_angles(&corner_dirs, w, h)
             .iter()
             .map(|&o| o as f32)
             .collect();
         Ok(Resampler {
-            width: w,
-            height: h,
-            supersample: lens.supersample,
-            ideal,
-            corners,
+            table,
             solid_angle,
             direction,
         })
@@ -191,81 +206,55 @@ impl Resampler {
 
     /// The distorted camera's radiance image from the ideal grid's
     /// `ideal` (radiance, row-major), as [`resample_radiance`]; pixels
-    /// whose corners all lie beyond the ideal image's non-zero box stay 0
-    /// without sampling.
+    /// whose terms all lie beyond the ideal image's non-zero box stay 0
+    /// without summing.
     pub fn resample(&self, ideal: &[f32]) -> Vec<f32> {
         let [out] = self.resample_all([ideal]);
         out
     }
 
     /// [`Resampler::resample`] of `N` images on the same ideal grid in one
-    /// pass (the sample points and weights are shared).
+    /// pass (the terms are shared).
     pub fn resample_all<const N: usize>(&self, images: [&[f32]; N]) -> [Vec<f32>; N] {
-        let (w, n) = (self.width, self.supersample);
-        let mut out: [Vec<f32>; N] = std::array::from_fn(|_| vec![0.0f32; w * self.height]);
-        let boxes = images.map(|img| crate::optics::psf::nonzero_box(img, self.ideal.width));
-        // Continuous coordinates whose bilinear lookup can be non-zero.
-        let Some((lo_x, hi_x, lo_y, hi_y)) = boxes.iter().flatten().fold(None, |acc, b| {
-            let (x0, x1, y0, y1) = (
-                b.0 as f64 - 0.5,
-                b.1 as f64 + 0.5,
-                b.2 as f64 - 0.5,
-                b.3 as f64 + 0.5,
-            );
-            Some(match acc {
-                None => (x0, x1, y0, y1),
-                Some((a, bb, c, d)) => (x0.min(a), x1.max(bb), y0.min(c), y1.max(d)),
-            })
-        }) else {
-            return out;
-        };
-        let inv = 1.0 / n as f64;
-        let rows: Vec<[Vec<f32>; N]> = (0..self.height)
-            .into_par_iter()
-            .map(|y| {
-                let mut row: [Vec<f32>; N] = std::array::from_fn(|_| vec![0.0f32; w]);
-                for x in 0..w {
-                    let c = |dx: usize, dy: usize| self.corners[(y + dy) * (w + 1) + x + dx];
-                    let (Some(a), Some(b), Some(cc), Some(d)) =
-                        (c(0, 0), c(1, 0), c(0, 1), c(1, 1))
-                    else {
-                        continue;
-                    };
-                    let xs = [a.0, b.0, cc.0, d.0];
-                    let ys = [a.1, b.1, cc.1, d.1];
-                    let max = |v: [f64; 4]| v.into_iter().fold(f64::MIN, f64::max);
-                    let min = |v: [f64; 4]| v.into_iter().fold(f64::MAX, f64::min);
-                    if max(xs) < lo_x || min(xs) > hi_x || max(ys) < lo_y || min(ys) > hi_y {
-                        continue;
-                    }
-                    let mut sums = [0.0f64; N];
-                    for sy in 0..n {
-                        let t = (sy as f64 + 0.5) * inv;
-                        for sx in 0..n {
-                            let s = (sx as f64 + 0.5) * inv;
-                            let lerp = |p: f64, q: f64, r: f64, z: f64| {
-                                (1.0 - t) * ((1.0 - s) * p + s * q) + t * ((1.0 - s) * r + s * z)
-                            };
-                            let at = (lerp(a.0, b.0, cc.0, d.0), lerp(a.1, b.1, cc.1, d.1));
-                            for (sum, img) in sums.iter_mut().zip(&images) {
-                                *sum += bilinear(img, &self.ideal, at);
-                            }
-                        }
-                    }
-                    for (r, sum) in row.iter_mut().zip(sums) {
-                        r[x] = (sum * inv * inv) as f32;
-                    }
-                }
-                row
-            })
-            .collect();
-        for (y, row) in rows.into_iter().enumerate() {
-            for (o, r) in out.iter_mut().zip(row) {
-                o[y * w..(y + 1) * w].copy_from_slice(&r);
-            }
-        }
-        out
+        self.table.apply(images)
     }
+}
+
+/// The resampling [`Resampler`] tabulates, done directly: each pixel's
+/// corners placed in `lens`'s ideal grid, its `n²` sample points
+/// interpolated between them and each read bilinearly from `ideal`. The
+/// reference the table is tested against.
+pub fn resample_direct(lens: &Lens, ideal: &[f32]) -> Vec<f32> {
+    let (w, h, n) = (
+        lens.intrinsics.width,
+        lens.intrinsics.height,
+        lens.supersample,
+    );
+    let corners = ideal_corners(lens);
+    let inv = 1.0 / n as f64;
+    let mut out = vec![0.0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            let c = |dx: usize, dy: usize| corners[(y + dy) * (w + 1) + x + dx].map(|c| c.1);
+            let (Some(a), Some(b), Some(cc), Some(d)) = (c(0, 0), c(1, 0), c(0, 1), c(1, 1)) else {
+                continue;
+            };
+            let mut sum = 0.0;
+            for sy in 0..n {
+                let t = (sy as f64 + 0.5) * inv;
+                for sx in 0..n {
+                    let s = (sx as f64 + 0.5) * inv;
+                    let lerp = |p: f64, q: f64, r: f64, z: f64| {
+                        (1.0 - t) * ((1.0 - s) * p + s * q) + t * ((1.0 - s) * r + s * z)
+                    };
+                    let at = (lerp(a.0, b.0, cc.0, d.0), lerp(a.1, b.1, cc.1, d.1));
+                    sum += bilinear(ideal, &lens.ideal, at);
+                }
+            }
+            *o = (sum * inv * inv) as f32;
+        }
+    });
+    out
 }
 
 /// The distorted camera's radiance image from the ideal `pinhole` image
@@ -356,7 +345,11 @@ fn quad_solid_angles(corners: &[Option<DVec3>], w: usize, h: usize) -> Vec<f64> 
             let c = |dx: usize, dy: usize| corners[(y + dy) * (w + 1) + x + dx];
             match (c(0, 0), c(1, 0), c(1, 1), c(0, 1)) {
                 (Some(a), Some(b), Some(cc), Some(d)) => {
-                    spherical_triangle(a, b, cc) + spherical_triangle(a, cc, d)
+                    // atan2(n₁, d₁) + atan2(n₂, d₂) in one atan2 (each
+                    // triangle's half-angle is in [0, π/2)).
+                    let (n1, d1) = triangle_tangent(a, b, cc);
+                    let (n2, d2) = triangle_tangent(a, cc, d);
+                    2.0 * (n1 * d2 + n2 * d1).atan2(d1 * d2 - n1 * n2)
                 }
                 _ => 0.0,
             }
@@ -364,12 +357,13 @@ fn quad_solid_angles(corners: &[Option<DVec3>], w: usize, h: usize) -> Vec<f64> 
         .collect()
 }
 
-/// Solid angle of the spherical triangle of unit vectors a, b, c (Van
-/// Oosterom and Strackee).
-fn spherical_triangle(a: DVec3, b: DVec3, c: DVec3) -> f64 {
+/// The spherical triangle of unit vectors a, b, c: its solid angle is
+/// 2 atan2(num, den) of the returned (num, den) (Van Oosterom and
+/// Strackee).
+fn triangle_tangent(a: DVec3, b: DVec3, c: DVec3) -> (f64, f64) {
     let num = a.dot(b.cross(c)).abs();
     let den = 1.0 + a.dot(b) + b.dot(c) + c.dot(a);
-    2.0 * num.atan2(den)
+    (num, den)
 }
 
 #[cfg(test)]
@@ -436,6 +430,94 @@ mod tests {
             .map(|(a, b)| (a - b).abs())
             .fold(0.0f32, f32::max);
         assert!(worst < 2.5e-4, "{worst}");
+    }
+
+    /// The weight table gives the direct resampling's image within f32
+    /// rounding (its weights are f32, its sums f32: under 10⁻⁶ of the
+    /// image's scale), on a smooth image filling the ideal grid and on a
+    /// small blob, where the table skips every tile outside the blob's box.
+    #[test]
+    fn the_weight_table_equals_the_direct_resampling() {
+        let k = CameraIntrinsics {
+            width: 70,
+            height: 45,
+            camera_matrix: [[90.0, 0.0, 34.2], [0.0, 95.0, 22.8], [0.0, 0.0, 1.0]],
+            distortion: [-0.3, 0.08, 2e-3, -1.5e-3, -0.01],
+        };
+        for n in [1, 3, 4] {
+            let lens = Lens::new(k.clone(), n).unwrap();
+            let p = &lens.ideal;
+            let smooth: Vec<f32> = (0..p.width * p.height)
+                .map(|i| {
+                    let (x, y) = ((i % p.width) as f64, (i / p.width) as f64);
+                    (2.0 + (x / 7.0).sin() * (y / 5.0).cos()) as f32
+                })
+                .collect();
+            let mut blob = vec![0.0f32; p.width * p.height];
+            for y in 30..36 {
+                for x in 50..57 {
+                    blob[y * p.width + x] = (1.0 + x as f32 * 0.1) * (y as f32 - 29.0);
+                }
+            }
+            let resampler = Resampler::new(&lens).unwrap();
+            let [a, b] = resampler.resample_all([&smooth, &blob]);
+            for (table, img, scale) in [(a, &smooth, 3.0f32), (b, &blob, 40.0)] {
+                let direct = resample_direct(&lens, img);
+                let worst = table
+                    .iter()
+                    .zip(&direct)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0f32, f32::max);
+                assert!(worst <= 1e-6 * scale, "n = {n}: {worst}");
+                assert!(direct.iter().any(|&v| v != 0.0));
+            }
+            let mean = resampler.table.len() as f64 / (70.0 * 45.0);
+            assert!((1.0..=9.0).contains(&mean), "{mean} terms per pixel");
+        }
+    }
+
+    /// The fast undistortion (analytic Jacobian, warm starts) finds the
+    /// same directions as the calibration's own Newton solve.
+    #[test]
+    fn the_grid_undistortion_matches_pixel_to_direction() {
+        let k = CameraIntrinsics {
+            width: 40,
+            height: 30,
+            camera_matrix: [[60.0, 0.0, 19.5], [0.0, 62.0, 14.5], [0.0, 0.0, 1.0]],
+            distortion: [-0.25, 0.05, 1e-3, -2e-3, 0.01],
+        };
+        let grid = super::super::lens_table::undistort_grid(&k, 40, 30, 0.5);
+        for (i, m) in grid.iter().enumerate() {
+            let (u, v) = ((i % 40) as f64 + 0.5, (i / 40) as f64 + 0.5);
+            let d = m.unwrap().extend(1.0).normalize();
+            let e = k.pixel_to_direction(u, v).unwrap();
+            assert!((d - e).length() < 1e-11, "({u}, {v})");
+        }
+    }
+
+    /// Beyond the field the barrel polynomial folds back: x = 1.75 maps
+    /// to 1.75 · (1 − 0.3 · 1.75²) = 0.142, inside the image, but the lens
+    /// does not see it there; inside the field `project` is OpenCV's.
+    #[test]
+    fn project_refuses_the_folded_polynomial_beyond_the_field() {
+        let k = CameraIntrinsics {
+            width: 64,
+            height: 48,
+            camera_matrix: [[100.0, 0.0, 31.5], [0.0, 100.0, 23.5], [0.0, 0.0, 1.0]],
+            distortion: [-0.3, 0.0, 0.0, 0.0, 0.0],
+        };
+        let lens = Lens::new(k.clone(), 2).unwrap();
+        let far = DVec3::new(1.75, 0.0, 1.0);
+        let (u, _) = k.direction_to_pixel(far).unwrap();
+        assert!((u - (31.5 + 100.0 * 1.75 * (1.0 - 0.3 * 1.75 * 1.75) + 0.5)).abs() < 1e-9);
+        assert!(
+            u > 0.0 && u < 64.0,
+            "the polynomial folds into the image: {u}"
+        );
+        assert_eq!(lens.project(far), None);
+        let near = DVec3::new(0.2, -0.1, 1.0);
+        assert_eq!(lens.project(near), k.direction_to_pixel(near));
+        assert_eq!(lens.project(DVec3::new(0.0, 0.0, -1.0)), None);
     }
 
     /// The pixels' solid angles add up to the field's: the frame's corners'

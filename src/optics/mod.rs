@@ -5,4 +5,5 @@
 //! move light between pixels.
 
 pub mod distortion;
+pub mod lens_table;
 pub mod psf;

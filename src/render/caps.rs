@@ -412,6 +412,7 @@ impl Frame<'_> {
         let base = zc * (ct * self.radius) - self.camera_cam;
         let (xs, ys) = (xc * (st * self.radius), yc * (st * self.radius));
         let height = self.height.map(|h| &h.0);
+        let tiles = self.body.relief.height_tiles.as_deref();
         let [xb, yb, zb] = self.axes_body;
         for _ in 0..=n {
             let mut p = base + xs * cp + ys * sp;
@@ -419,7 +420,8 @@ impl Frame<'_> {
                 // The corner on the displaced surface: the limb moves with
                 // the relief (`scene::surface`).
                 let n_body = xb * (st * cp) + yb * (st * sp) + zb * ct;
-                let r = crate::scene::surface::displaced_radius(h, self.radius, n_body);
+                let r =
+                    crate::scene::surface::displaced_radius_tiled(h, tiles, self.radius, n_body);
                 p = (p + self.camera_cam) * (r / self.radius) - self.camera_cam;
             }
             out.pos.push(if p.z > 0.0 {
@@ -693,7 +695,12 @@ impl Frame<'_> {
         albedo: f64,
     ) -> f64 {
         let (r, geometric) = match self.height {
-            Some(h) => crate::scene::surface::displaced(h, radius, n_body),
+            Some(h) => crate::scene::surface::displaced_tiled(
+                h,
+                self.body.relief.height_tiles.as_deref(),
+                radius,
+                n_body,
+            ),
             None => (radius, n_body),
         };
         let shading = match &self.body.relief.normals {
@@ -724,11 +731,29 @@ impl Frame<'_> {
         if projected <= 0.0 {
             return 0.0;
         }
+        let hidden = self.camera_visible(n_body, cam);
+        if hidden == 0.0 {
+            return 0.0;
+        }
         let area_scale = (r / radius) * (r / radius);
         self.reflect(model, &g, albedo, n_body) * (AU * AU / sun_sq) * projected * area_scale
             / cam_sq
             * self.sun_fraction(p)
             * self.relief_shadow(n_local, n_body, r)
+    }
+
+    /// 0 where nearer relief hides the point of body-fixed direction
+    /// `n_body` from the camera (`cam`: the point to the camera, Lester
+    /// coordinates), else 1. Only with both the horizon map and the
+    /// displacement: the flat sphere's points are hidden by nothing.
+    #[inline]
+    fn camera_visible(&self, n_body: DVec3, cam: DVec3) -> f64 {
+        let (Some(shadows), Some(_)) = (&self.shadows, self.height) else {
+            return 1.0;
+        };
+        let [xb, yb, zb] = self.axes_body;
+        let v = (xb * cam.x + yb * cam.y + zb * cam.z).normalize();
+        shadows.camera_visible(n_body, v)
     }
 }
 

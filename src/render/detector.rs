@@ -197,7 +197,7 @@ pub fn render_scene(
     let psf_start = Instant::now();
     if let Some(psf) = &cam.psf {
         let kernel = crate::optics::psf::shared_kernel(psf)?;
-        spectral.blur(&kernel, grid.width, grid.height);
+        spectral.blur(&kernel, grid.width, grid.height, &pixels.solid_angle);
     }
     let psf_ms = cam
         .psf
@@ -292,16 +292,58 @@ struct Spectral {
     all_caps_electrons: f64,
     /// The last sub-band's statistics (phase, caps).
     stats: RenderStats,
+    /// L Ω per unit electron rate when one band makes both images
+    /// (E☉ / rate☉ of the band), else None.
+    radiance_per_rate: Option<f32>,
 }
 
 impl Spectral {
-    /// The optics' PSF: the pinhole image's radiance and electron rate
-    /// spread over the pixels (the light that leaves the frame is lost).
-    /// The pixels' solid angles and cos⁴ change little over a kernel, so
-    /// blurring before the detector equals blurring its electrons.
-    fn blur(&mut self, kernel: &crate::optics::psf::Kernel, width: usize, height: usize) {
-        self.radiance = kernel.convolve(&self.radiance, width, height);
-        self.electron_rate = kernel.convolve(&self.electron_rate, width, height);
+    /// The optics' PSF: the pinhole image's power spread over the pixels
+    /// (the light that leaves the frame is lost). The electron rate is a
+    /// power per pixel and is convolved as it is; the radiance is the
+    /// convolved power L Ω over each pixel's solid angle `omega`. With one
+    /// band the two are the same image (L Ω = rate · E☉ / rate☉, the
+    /// band's `radiance_per_rate`), so it is convolved once. The pixels'
+    /// cos⁴ changes little over a kernel, so blurring before the detector
+    /// equals blurring its electrons.
+    fn blur(
+        &mut self,
+        kernel: &crate::optics::psf::Kernel,
+        width: usize,
+        height: usize,
+        omega: &[f32],
+    ) {
+        let (rate, rate_box) = kernel.convolve_in_box(&self.electron_rate, width, height);
+        self.electron_rate = rate;
+        let (power, scale, area) = match self.radiance_per_rate {
+            Some(ratio) => (&self.electron_rate, ratio, rate_box),
+            None => {
+                let power: Vec<f32> = self
+                    .radiance
+                    .iter()
+                    .zip(omega)
+                    .map(|(l, o)| l * o)
+                    .collect();
+                let (power, area) = kernel.convolve_in_box(&power, width, height);
+                self.radiance = power;
+                (&self.radiance, 1.0, area)
+            }
+        };
+        // Only the convolution's box holds light.
+        let mut radiance = vec![0.0f32; width * height];
+        if let Some([x0, x1, y0, y1]) = area {
+            for y in y0..y1 {
+                let span = y * width + x0..y * width + x1;
+                for ((l, &p), &o) in radiance[span.clone()]
+                    .iter_mut()
+                    .zip(&power[span.clone()])
+                    .zip(&omega[span])
+                {
+                    *l = p * scale / o;
+                }
+            }
+        }
+        self.radiance = radiance;
     }
 
     /// The lens: the ideal grid's images resampled onto the camera's
@@ -330,7 +372,7 @@ impl Spectral {
 /// through a lens, their centres' directions (else the pinhole's).
 struct OutputPixels<'a> {
     solid_angle: &'a [f32],
-    direction: Option<&'a [[f32; 3]]>,
+    direction: Option<&'a [glam::DVec3]>,
 }
 
 /// Renders each sub-band at its own model and sums radiance and electron
@@ -349,6 +391,12 @@ fn render_bands(
         all_caps: 0.0,
         all_caps_electrons: 0.0,
         stats: RenderStats::default(),
+        radiance_per_rate: match bands {
+            [band] if band.electron_rate_1au > 0.0 => {
+                Some((band.irradiance_1au / band.electron_rate_1au) as f32)
+            }
+            _ => None,
+        },
     };
     for band in bands {
         let model = scene.body.reflectance.at_wavelength(band.centroid);
@@ -425,7 +473,7 @@ fn detect(
                 continue;
             }
             let dir = match pixels.direction {
-                Some(d) => glam::DVec3::from(d[k].map(f64::from)),
+                Some(d) => d[k],
                 None => pin.pixel_direction(i, j),
             };
             let cos_los = dir.dot(los);

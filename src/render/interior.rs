@@ -29,6 +29,7 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
 use super::caps::{Footprint, Frame, Rect};
+use super::polar_sun::{self, PolarNode};
 use super::relief::SunAtPoint;
 use crate::scene::EquirectMap;
 
@@ -54,6 +55,10 @@ pub struct InteriorMask {
     eroded_rows: Vec<bool>,
     count: usize,
     lattice: Lattice,
+    /// Centre shadow factors, for the shadow-edge pass.
+    centre_factors: super::shadow_edges::CentreFactors,
+    /// Shadow-edge pixels re-evaluated in the last frame.
+    shadow_edges: usize,
 }
 
 impl InteriorMask {
@@ -183,7 +188,7 @@ impl InteriorMask {
         rays: &PixelRays,
         flux: &mut [f32],
         width: usize,
-        node_spacing: usize,
+        (node_spacing, shadow_edges): (usize, bool),
     ) -> (f64, DirectCounts) {
         let roi = self.roi;
         let w = roi.width();
@@ -192,11 +197,21 @@ impl InteriorMask {
             &self.lattice
         });
         let interior = &self.interior;
-        flux.par_chunks_mut(width)
+        // The smooth part of a pixel's flux: its cast shadow is applied
+        // once, as a factor, and a pixel wholly in shadow skips the rest.
+        let smooth = &Frame {
+            shadows: None,
+            ..*frame
+        };
+        let shadows = frame.shadows.is_some();
+        self.centre_factors.reset(roi, shadows);
+        let (sum, counts) = flux
+            .par_chunks_mut(width)
             .enumerate()
             .skip(roi.y0)
             .take(roi.height())
-            .map(|(j, row)| {
+            .zip(self.centre_factors.rows_mut())
+            .map(|((j, row), centre)| {
                 let mask = &interior[(j - roi.y0) * w..(j - roi.y0 + 1) * w];
                 let mut counts = DirectCounts::default();
                 if !mask.iter().any(|&m| m) {
@@ -205,7 +220,7 @@ impl InteriorMask {
                 // Per-thread scratch, kept between frames: no allocation
                 // in the frame loop once warm.
                 COLUMNS.with_borrow_mut(|columns| {
-                    SUN_COLUMNS.with_borrow_mut(|sun_columns| {
+                    SUN_COLUMNS.with_borrow_mut(|sun| {
                         if let Some(l) = lattice {
                             l.columns_at_row(
                                 &l.nodes,
@@ -213,35 +228,47 @@ impl InteriorMask {
                                 j - roi.y0,
                                 columns,
                             );
-                            if !l.sun_nodes.is_empty() {
-                                l.columns_at_row(
-                                    &l.sun_nodes,
-                                    (SUN_X, l.horizon_width),
-                                    j - roi.y0,
-                                    sun_columns,
-                                );
-                            }
+                            l.sun_columns_at_row(j - roi.y0, sun);
                         }
                         let mut sum = 0.0;
                         for (ii, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
                             let i = roi.x0 + ii;
+                            let shadow = match lattice {
+                                _ if frame.shadows.is_none() => 1.0,
+                                Some(l) => {
+                                    l.relief_shadow(frame, rays, sun, (ii, i, j), &mut counts)
+                                }
+                                None => {
+                                    counts.shadow_exact += 1;
+                                    rays.relief_shadow_at(frame, i, j)
+                                }
+                            };
+                            if shadows {
+                                centre[ii] = shadow as f32;
+                            }
+                            if shadow == 0.0 {
+                                counts.dark += 1;
+                                row[i] = 0.0;
+                                continue;
+                            }
                             let interpolated = lattice.and_then(|l| {
                                 l.interpolate_at(columns, (FACTORS_X, l.map_width), ii)
                                     .map(|q| (l, q))
                             });
                             let f = match interpolated {
                                 Some((l, q)) => {
-                                    let (f, exact) = l.pixel_flux(frame, q);
+                                    let (f, exact) = l.pixel_flux(smooth, q);
                                     counts.map_exact += usize::from(exact);
-                                    f * l.relief_shadow(frame, rays, sun_columns, (ii, i, j))
+                                    f
                                 }
                                 None => {
-                                    let (f, points, exact) = rays.pixel_flux(frame, i, j);
+                                    let (f, points, exact) =
+                                        rays.unshadowed_pixel_flux(smooth, i, j);
                                     counts.add(points);
                                     counts.map_exact += usize::from(exact);
                                     f
                                 }
-                            };
+                            } * shadow;
                             row[i] = f as f32;
                             sum += f;
                         }
@@ -252,7 +279,38 @@ impl InteriorMask {
             .reduce(
                 || (0.0, DirectCounts::default()),
                 |(a, ca), (b, cb)| (a + b, ca.merged(cb)),
-            )
+            );
+        self.shadow_edges = 0;
+        if !shadows || !shadow_edges {
+            return (sum, counts);
+        }
+        let (delta, edges) =
+            super::shadow_edges::refine(frame, rays, &self.centre_factors, flux, width);
+        self.shadow_edges = edges;
+        (sum + delta, counts)
+    }
+
+    /// Shadow-edge pixels re-evaluated over their preimage in the last
+    /// frame ([`super::shadow_edges`]).
+    pub fn shadow_edges(&self) -> usize {
+        self.shadow_edges
+    }
+}
+
+impl super::shadow_edges::PixelShadow for PixelRays {
+    fn shadow_at(&self, frame: &Frame, u: f64, v: f64) -> f64 {
+        match self.surface(u, v) {
+            Some(s) => frame.relief_shadow(s.n_local, s.n_body, self.radius),
+            None => 0.0,
+        }
+    }
+
+    fn unshadowed(&self, frame: &Frame, i: usize, j: usize) -> f64 {
+        let smooth = Frame {
+            shadows: None,
+            ..*frame
+        };
+        self.unshadowed_pixel_flux(&smooth, i, j).0
     }
 }
 
@@ -271,6 +329,15 @@ pub struct DirectCounts {
     pub gauss2: usize,
     /// 4×4 Gauss points.
     pub gauss4: usize,
+    /// Interior pixels wholly in a cast shadow: flux 0, nothing else
+    /// evaluated.
+    pub dark: usize,
+    /// Interior pixels whose cast shadow took the exact geometry at the
+    /// pixel centre (no lattice there, or the penumbra).
+    pub shadow_exact: usize,
+    /// Interior pixels whose cast shadow was interpolated from the polar
+    /// nodes ([`super::polar_sun`]).
+    pub shadow_polar: usize,
 }
 
 impl DirectCounts {
@@ -288,6 +355,9 @@ impl DirectCounts {
             gauss2: self.gauss2 + o.gauss2,
             gauss4: self.gauss4 + o.gauss4,
             map_exact: self.map_exact + o.map_exact,
+            dark: self.dark + o.dark,
+            shadow_exact: self.shadow_exact + o.shadow_exact,
+            shadow_polar: self.shadow_polar + o.shadow_polar,
         }
     }
 }
@@ -323,6 +393,12 @@ struct Lattice {
     sun_nodes: Vec<Option<SunNode>>,
     /// Horizon-map width [cells] (for longitude unwrapping).
     horizon_width: f64,
+    /// The Sun at each node in the polar frame ([`PolarNode`]) when the
+    /// frame casts relief shadows, else empty; `None` outside the cap.
+    polar_nodes: Vec<Option<PolarNode>>,
+    /// The cap the polar nodes are in: +1 north, −1 south (the one on the
+    /// camera's side of the equator).
+    cap: f64,
 }
 
 /// D, I, and the footprint: texel x, y and axes a1, a2.
@@ -340,9 +416,15 @@ thread_local! {
     /// A row's lattice columns ([`Lattice::columns_at_row`]).
     static COLUMNS: std::cell::RefCell<Vec<Option<Factors>>> =
         const { std::cell::RefCell::new(Vec::new()) };
-    /// A row's lattice columns of [`SunNode`]s.
-    static SUN_COLUMNS: std::cell::RefCell<Vec<Option<SunNode>>> =
-        const { std::cell::RefCell::new(Vec::new()) };
+    /// A row's lattice columns of the Sun's nodes.
+    static SUN_COLUMNS: std::cell::RefCell<SunColumns> =
+        const { std::cell::RefCell::new(SunColumns { equatorial: Vec::new(), polar: Vec::new() }) };
+}
+
+/// A row's lattice columns of the Sun's nodes, equatorial and polar.
+struct SunColumns {
+    equatorial: Vec<Option<SunNode>>,
+    polar: Vec<Option<PolarNode>>,
 }
 
 /// Nodes where |cos latitude| is below this are not interpolated: the
@@ -405,6 +487,10 @@ fn combine<const N: usize>(
 const FACTORS_X: usize = 2;
 /// Component of [`SunNode`] holding the horizon map's x.
 const SUN_X: usize = 0;
+/// Component of [`SunNode`] holding sin(Sun elevation).
+const SUN_SIN_E: usize = 2;
+/// Component of [`PolarNode`] holding sin(Sun elevation).
+const POLAR_SIN_E: usize = polar_sun::SIN_E;
 
 impl Lattice {
     fn build(&mut self, frame: &Frame, rays: &PixelRays, roi: Rect, step: usize) {
@@ -445,7 +531,8 @@ impl Lattice {
     }
 
     /// The Sun at every node (`rows` rows, node (0, 0) at pixel position
-    /// `origin`) when the frame casts relief shadows, else none.
+    /// `origin`), equatorial and polar, when the frame casts relief
+    /// shadows, else none.
     fn build_sun_nodes(
         &mut self,
         frame: &Frame,
@@ -454,21 +541,47 @@ impl Lattice {
         (origin_u, origin_v): (f64, f64),
     ) {
         self.sun_nodes.clear();
-        let Some(shadows) = &frame.shadows else {
+        self.polar_nodes.clear();
+        if frame.shadows.is_none() {
             return;
-        };
-        self.horizon_width = shadows.map.width() as f64;
+        }
+        self.cap = rays.camera_cap();
+        let cap = self.cap;
         self.sun_nodes.resize(self.cols * rows, None);
-        let step = self.step as f64;
+        self.polar_nodes.resize(self.cols * rows, None);
+        let (lattice_step, step) = (self.step, self.step as f64);
+        let (cols, horizon_width) = (self.cols, &mut self.horizon_width);
         self.sun_nodes
-            .par_chunks_mut(self.cols)
+            .par_chunks_mut(cols)
+            .zip(self.polar_nodes.par_chunks_mut(cols))
             .enumerate()
-            .for_each(|(n, row)| {
+            .for_each(|(n, (row, polar))| {
                 let v = origin_v + n as f64 * step;
-                for (m, node) in row.iter_mut().enumerate() {
-                    *node = rays.sun_node(frame, origin_u + m as f64 * step, v);
+                for (m, (node, p)) in row.iter_mut().zip(polar).enumerate() {
+                    (*node, *p) =
+                        rays.sun_nodes(frame, (origin_u + m as f64 * step, v), lattice_step, cap);
                 }
             });
+        if let Some(shadows) = &frame.shadows {
+            *horizon_width = shadows.map.width() as f64;
+        }
+    }
+
+    /// The Sun's node columns, equatorial and polar, interpolated to ROI
+    /// row `jj` (empty without cast shadows).
+    fn sun_columns_at_row(&self, jj: usize, out: &mut SunColumns) {
+        out.equatorial.clear();
+        out.polar.clear();
+        if self.sun_nodes.is_empty() {
+            return;
+        }
+        self.columns_at_row(
+            &self.sun_nodes,
+            (SUN_X, self.horizon_width),
+            jj,
+            &mut out.equatorial,
+        );
+        self.columns_at_row(&self.polar_nodes, (0, 0.0), jj, &mut out.polar);
     }
 
     /// The nodes of every lattice column interpolated to ROI row `jj`.
@@ -510,37 +623,75 @@ impl Lattice {
         Some(combine(q, &self.weights[offset], wrap, map_width))
     }
 
+    /// Component `k` alone of [`Self::interpolate_at`] (not one that
+    /// wraps), in the same arithmetic.
+    #[inline]
+    fn interpolate_one<const N: usize>(
+        &self,
+        columns: &[Option<[f64; N]>],
+        ii: usize,
+        k: usize,
+    ) -> Option<f64> {
+        let (m, offset) = self.column_of[ii];
+        let w = &self.weights[offset];
+        let (a, b) = (columns[m - 1].as_ref()?[k], columns[m].as_ref()?[k]);
+        let (c, d) = (columns[m + 1].as_ref()?[k], columns[m + 2].as_ref()?[k]);
+        Some(w[0] * a + w[1] * b + w[2] * c + w[3] * d)
+    }
+
     /// The relief's cast-shadow factor of pixel (i, j), ROI column `ii`:
-    /// from the interpolated Sun where the row's Sun columns allow, else
-    /// exact at the pixel centre (and in the penumbra).
+    /// from the interpolated Sun where the row's Sun columns allow
+    /// (equatorial nodes, else polar ones), else exact at the pixel centre
+    /// (and in the penumbra).
     #[inline]
     fn relief_shadow(
         &self,
         frame: &Frame,
         rays: &PixelRays,
-        sun_columns: &[Option<SunNode>],
+        sun: &SunColumns,
         (ii, i, j): (usize, usize, usize),
+        counts: &mut DirectCounts,
     ) -> f64 {
         let Some(shadows) = &frame.shadows else {
             return 1.0;
         };
-        let Some([x, y, sin_e, east, north]) =
-            self.interpolate_at(sun_columns, (SUN_X, self.horizon_width), ii)
-        else {
+        // A Sun above every horizon needs only its elevation (most pixels
+        // of a frame away from the terminator): interpolated alone first.
+        let equatorial_sin_e = self.interpolate_one(&sun.equatorial, ii, SUN_SIN_E);
+        let polar_sin_e = || self.interpolate_one(&sun.polar, ii, POLAR_SIN_E);
+        let f = if let Some(sin_e) = equatorial_sin_e {
+            if shadows.is_clear(sin_e) {
+                return 1.0;
+            }
+            let [x, y, sin_e, east, north] = self
+                .interpolate_at(&sun.equatorial, (SUN_X, self.horizon_width), ii)
+                .expect("every node of the stencil is there");
+            shadows.factor_at(&SunAtPoint {
+                x,
+                y,
+                sin_e,
+                east,
+                north,
+            })
+        } else if let Some(sin_e) = polar_sin_e() {
+            counts.shadow_polar += 1;
+            if shadows.is_clear(sin_e) {
+                return 1.0;
+            }
+            let q = self
+                .interpolate_at(&sun.polar, (0, 0.0), ii)
+                .expect("every node of the stencil is there");
+            shadows.factor_at(&polar_sun::sun_at(shadows.map, &q, self.cap))
+        } else {
+            counts.shadow_exact += 1;
             return rays.relief_shadow_at(frame, i, j);
         };
-        let f = shadows.factor_at(&SunAtPoint {
-            x,
-            y,
-            sin_e,
-            east,
-            north,
-        });
         // In the penumbra the factor is steep (≈ 2/(π ρ) per radian): the
         // exact geometry there. Lit or dark, it is flat within reach of the
         // interpolation's error (the disk share goes as (1 − |u|)^{3/2} at
         // its ends), so the interpolated answer stands.
         if f > 0.0 && f < 1.0 {
+            counts.shadow_exact += 1;
             rays.relief_shadow_at(frame, i, j)
         } else {
             f
@@ -802,18 +953,44 @@ impl PixelRays {
         integrand * dist * dist / mu * omega
     }
 
-    /// The Sun seen from the surface through pixel position (u, v), as a
-    /// lattice node: None off the sphere or where |cos latitude| is below
-    /// [`NODE_MIN_COS_LAT`] (local east turns fast near a pole).
-    fn sun_node(&self, frame: &Frame, u: f64, v: f64) -> Option<SunNode> {
-        let shadows = frame.shadows.as_ref()?;
-        let s = self.surface(u, v)?;
-        if s.n_body.x.hypot(s.n_body.y) < NODE_MIN_COS_LAT {
-            return None;
+    /// The Sun seen from the surface through pixel position (u, v), as an
+    /// equatorial and a polar lattice node of a lattice `step` pixels
+    /// apart: both None off the sphere or within [`NODE_LIMB_STEPS`] steps
+    /// of the limb, the equatorial one also where |cos latitude| is below [`NODE_MIN_COS_LAT`]
+    /// (local east turns fast near a pole), the polar one None outside
+    /// the polar cap `cap` ([`polar_sun::polar_node`]).
+    fn sun_nodes(
+        &self,
+        frame: &Frame,
+        (u, v): (f64, f64),
+        step: usize,
+        cap: f64,
+    ) -> (Option<SunNode>, Option<PolarNode>) {
+        let (Some(shadows), Some(s)) = (frame.shadows.as_ref(), self.surface(u, v)) else {
+            return (None, None);
+        };
+        // Near the limb the normal goes as √(distance): not a cubic.
+        if self.to_limb(&s) < NODE_LIMB_STEPS * step as f64 {
+            return (None, None);
         }
         let l = frame.sun_direction_body(s.n_local, self.radius);
+        let polar = polar_sun::polar_node(shadows, s.n_body, l, cap);
+        if s.n_body.x.hypot(s.n_body.y) < NODE_MIN_COS_LAT {
+            return (None, polar);
+        }
         let g = shadows.geometry(s.n_body, l);
-        Some([g.x, g.y, g.sin_e, g.east, g.north])
+        (Some([g.x, g.y, g.sin_e, g.east, g.north]), polar)
+    }
+
+    /// The polar cap on the camera's side of the body's equator: +1
+    /// north, −1 south.
+    fn camera_cap(&self) -> f64 {
+        let camera_body = self.cam_to_body * -self.centre;
+        if camera_body.z < 0.0 {
+            -1.0
+        } else {
+            1.0
+        }
     }
 
     /// The relief's cast-shadow factor at the centre of pixel (i, j).
@@ -901,7 +1078,8 @@ impl PixelRays {
     }
 
     /// Collected flux of interior pixel (i, j) per unit solar irradiance at
-    /// 1 au, evaluated directly, the quadrature's points per axis, and
+    /// 1 au, evaluated directly without its cast shadow (the caller applies
+    /// one factor at the pixel centre, as on the lattice), the quadrature's points per axis, and
     /// whether the map's mean was exact.
     ///
     /// With the exact mean (the exact filter, or the adaptive one where
@@ -910,22 +1088,6 @@ impl PixelRays {
     /// point's own footprint: the product rule per cell, which keeps the
     /// map's variation across the pixel that a single mean times every
     /// point's geometry loses.
-    fn pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
-        // A cast shadow is taken at the pixel centre, as on the lattice:
-        // one exact factor, not one per Gauss point.
-        if frame.shadows.is_none() {
-            return self.unshadowed_pixel_flux(frame, i, j);
-        }
-        let shadow = self.relief_shadow_at(frame, i, j);
-        let smooth = Frame {
-            shadows: None,
-            ..*frame
-        };
-        let (f, points, exact) = self.unshadowed_pixel_flux(&smooth, i, j);
-        (f * shadow, points, exact)
-    }
-
-    /// [`Self::pixel_flux`] of a frame without cast shadows.
     #[inline]
     fn unshadowed_pixel_flux(&self, frame: &Frame, i: usize, j: usize) -> (f64, usize, bool) {
         let (u, v) = (i as f64 + 0.5, j as f64 + 0.5);

@@ -20,7 +20,9 @@ pub mod field;
 pub mod interior;
 pub mod lune;
 pub mod output;
+mod polar_sun;
 pub mod relief;
+pub mod shadow_edges;
 
 use std::time::Instant;
 
@@ -255,9 +257,13 @@ impl Renderer {
         stats.stages.caps = (t_interior - t_caps).as_secs_f64();
 
         if let Some(r) = &rays {
-            let (flux, direct) =
-                self.interior
-                    .integrate(&frame, r, &mut self.flux, w, settings.node_spacing);
+            let (flux, direct) = self.interior.integrate(
+                &frame,
+                r,
+                &mut self.flux,
+                w,
+                (settings.node_spacing, settings.shadow_edges),
+            );
             stats.total_flux += flux;
             stats.interior_pixels = self.interior.count();
             stats.interior_direct = direct;

@@ -24,6 +24,8 @@ pub struct FrameShadows<'a> {
     sin_clear: f64,
     /// sin(Sun radius): a sample whose Sun stands lower is dark.
     sin_radius: f64,
+    /// sin(highest horizon): a camera standing higher sees the point.
+    sin_max: f64,
 }
 
 impl<'a> FrameShadows<'a> {
@@ -35,7 +37,15 @@ impl<'a> FrameShadows<'a> {
             sun_radius,
             sin_clear: clear.sin(),
             sin_radius: sun_radius.sin(),
+            sin_max: map.max_elevation().min(std::f64::consts::FRAC_PI_2).sin(),
         }
+    }
+
+    /// Whether a point whose Sun stands at sin(elevation) `sin_e` is
+    /// wholly lit wherever it is (above the highest horizon).
+    #[inline]
+    pub fn is_clear(&self, sin_e: f64) -> bool {
+        sin_e >= self.sin_clear
     }
 
     /// Lit share at the point of body-fixed unit direction `n` (the
@@ -50,6 +60,29 @@ impl<'a> FrameShadows<'a> {
             return 0.0;
         }
         self.factor_at(&self.geometry(n, l))
+    }
+
+    /// Whether the camera, along body-fixed unit vector `v` from the point
+    /// of body-fixed unit normal `n` (the sphere's normal), stands above
+    /// the relief's horizon in its azimuth there: 1 or 0 (a point, no
+    /// disk). Like the Sun's factor, a horizon at or below the horizontal
+    /// hides nothing.
+    #[inline]
+    pub fn camera_visible(&self, n: DVec3, v: DVec3) -> f64 {
+        if v.dot(n) >= self.sin_max {
+            return 1.0;
+        }
+        let g = self.geometry(n, v);
+        if g.sin_e >= self.map.sin_elevation_bound_at(g.x, g.y) {
+            return 1.0;
+        }
+        let horizon = self.map.elevation_at(g.x, g.y, g.north.atan2(g.east));
+        let elevation = g.sin_e.clamp(-1.0, 1.0).asin();
+        if horizon > 0.0 && elevation < horizon {
+            0.0
+        } else {
+            1.0
+        }
     }
 
     /// The Sun as seen from the point of body-fixed unit normal `n`: map
@@ -136,6 +169,10 @@ pub struct ShadowDecision {
     pub displaced: bool,
     /// How far [px] the DEM's highest point can move the limb on the image.
     pub limb_px: f64,
+    /// Whether terrain hidden from the camera by nearer relief was dropped
+    /// (a horizon lookup in the camera's azimuth): with both the shadows
+    /// and the displacement.
+    pub hidden_applied: bool,
 }
 
 /// Length on the image [px] that a shadow must reach to be applied in
@@ -215,6 +252,7 @@ pub fn decide_displacement(
     if !decision.displaced {
         frame.height = None;
     }
+    decision.hidden_applied = decision.applied && decision.displaced;
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@ pub mod camera;
 pub mod horizon;
 pub mod maps;
 pub mod surface;
+pub mod tile_surface;
 pub mod tiles;
 
 use std::path::{Path, PathBuf};
@@ -102,9 +103,12 @@ pub struct Relief {
     /// Height above the reference sphere [m], and its derivatives with
     /// respect to latitude and longitude [m/rad] (see [`surface`]).
     pub height: Option<(EquirectMap, EquirectMap, EquirectMap)>,
-    /// Largest |height| [m] of `height` (0 without): how far the
-    /// displacement can move the limb.
+    /// Largest |height| [m] of `height` and `height_tiles` (0 without):
+    /// how far the displacement can move the limb.
     pub height_bound: f64,
+    /// DEM tiles over `height` (`[[body.dem_tiles]]` with `shadows.displace`):
+    /// where they cover a point, its height and slopes are theirs.
+    pub height_tiles: Option<std::sync::Arc<tile_surface::HeightTiles>>,
     /// Tangent-space shading normals.
     pub normals: Option<NormalMap>,
     /// Shadows cast by the relief of a DEM (`[body] shadows`), with the
@@ -539,8 +543,8 @@ impl Relief {
     }
 
     /// [`Relief::from_dem`] with DEM tiles whose horizon maps are layered
-    /// over the global one. The tiles refine the shadows only: the
-    /// displacement stays the global DEM's (docs/SCENE.md).
+    /// over the global one; with `displace`, the tiles' heights and slopes
+    /// are layered over the global DEM's displacement the same way.
     pub fn from_dem_tiles(
         spec: &ShadowsSpec,
         dem_tiles: &[tiles::DemTileFile],
@@ -548,13 +552,16 @@ impl Relief {
         base: &Path,
         radius: f64,
     ) -> Result<Relief> {
-        let (shadows, dem) = relief_shadows(spec, dem_tiles, max_abs_height, base, radius)?;
+        let (shadows, dem, tiles) = relief_shadows(spec, dem_tiles, max_abs_height, base, radius)?;
         let mut relief = Relief {
             shadows: Some(std::sync::Arc::new(shadows)),
             ..Relief::default()
         };
         if spec.displace {
             relief.set_height(dem);
+            if let Some(set) = tiles {
+                relief.set_height_tiles(std::sync::Arc::new(set));
+            }
         }
         Ok(relief)
     }
@@ -566,6 +573,14 @@ impl Relief {
         let (d_lat, d_lon) = height.gradients();
         self.height = Some((height, d_lat, d_lon));
     }
+
+    /// Layers DEM `tiles` (heights [m]) over the displacement set by
+    /// [`Self::set_height`], widening its bound.
+    pub fn set_height_tiles(&mut self, tiles: std::sync::Arc<tiles::TileSet>) {
+        let t = tile_surface::HeightTiles::new(tiles);
+        self.height_bound = self.height_bound.max(t.bound());
+        self.height_tiles = Some(std::sync::Arc::new(t));
+    }
 }
 
 fn default_azimuths() -> i64 {
@@ -573,14 +588,14 @@ fn default_azimuths() -> i64 {
 }
 
 /// The horizon map of `[body] shadows` with its DEM tiles' maps layered
-/// over, from their caches or computed, and the global DEM [m].
+/// over, from their caches or computed, the global DEM [m] and the tiles.
 fn relief_shadows(
     s: &ShadowsSpec,
     dem_tiles: &[tiles::DemTileFile],
     max_abs_height: f64,
     base: &Path,
     radius: f64,
-) -> Result<(horizon::ReliefShadows, EquirectMap)> {
+) -> Result<(horizon::ReliefShadows, EquirectMap, Option<tiles::TileSet>)> {
     let key = "body.shadows";
     if !(s.scale.is_finite() && s.scale > 0.0) {
         return Err(Error::invalid(
@@ -617,6 +632,7 @@ fn relief_shadows(
     let mut cell = radius * std::f64::consts::PI / dem.height as f64;
     let mut relief = (h_max - h_min) as f64;
     let mut map = map;
+    let mut tile_set = None;
     if !dem_tiles.is_empty() {
         let key = "body.dem_tiles";
         let set = tiles::load_dem_tiles(dem_tiles, base, max_abs_height, key)?;
@@ -627,6 +643,7 @@ fn relief_shadows(
             cell = cell.min(radius * t.grid.cell_lat());
         }
         map = map.with_overlay(overlay);
+        tile_set = Some(set);
     }
     let shadows = horizon::ReliefShadows {
         map,
@@ -639,7 +656,7 @@ fn relief_shadows(
         dem_path: path,
         params,
     };
-    Ok((shadows, dem))
+    Ok((shadows, dem, tile_set))
 }
 
 #[derive(Deserialize)]
@@ -1301,7 +1318,9 @@ fn lens_from(
         };
     };
     let file = resolve(base, path);
-    let k = crate::instruments::intrinsics::CameraIntrinsics::load(&file)?;
+    // The file's own errors name it and its key; this names the scene's.
+    let k = crate::instruments::intrinsics::CameraIntrinsics::load(&file)
+        .map_err(|e| Error::invalid("camera.distortion", e.to_string()))?;
     let named = |e: Error| Error::invalid("camera.distortion", format!("{}: {e}", file.display()));
     if [k.width, k.height] != c.resolution {
         return Err(named(Error::Other(format!(
@@ -1370,8 +1389,11 @@ pub const MAX_IMAGE_BYTES: f64 = 2.0 * 1024.0 * 1024.0 * 1024.0;
 pub const IMAGE_BYTES_PER_PIXEL: f64 = 48.0;
 
 /// Bytes per camera pixel of a lens's tables (`optics::distortion::Resampler`):
-/// corner positions (24), centre direction (12) and solid angle (4).
-pub const LENS_BYTES_PER_PIXEL: f64 = 40.0;
+/// corner positions (24), centre direction (24), solid angle (4) and the
+/// resampling's weight table once every band is built (68: 8.0 terms of
+/// 8 bytes per pixel and a 4-byte row start, measured for
+/// configs/bench_lens_intrinsics.toml at 4 × 4 samples).
+pub const LENS_BYTES_PER_PIXEL: f64 = 120.0;
 
 /// `camera.resolution` bounded by the memory its images imply, before
 /// anything is allocated.

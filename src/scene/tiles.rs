@@ -100,6 +100,35 @@ impl TileGrid {
         t * t * (3.0 - 2.0 * t)
     }
 
+    /// [`Self::weight`] and its derivatives with respect to latitude and
+    /// longitude [1/rad]: the smoothstep's slope 6t(1 − t) times that of
+    /// the distance from the nearest edge (0 outside, beyond the band, and
+    /// without one).
+    #[inline]
+    pub fn weight_and_gradient(&self, lat: f64, lon: f64) -> (f64, f64, f64) {
+        let w = self.weight(lat, lon);
+        if w <= 0.0 || self.blend <= 0.0 {
+            return (w, 0.0, 0.0);
+        }
+        let (x, y) = self.texel(lat, lon);
+        let (west, east) = (x + 0.5, self.width as f64 - 0.5 - x);
+        let (north, south) = (y + 0.5, self.height as f64 - 0.5 - y);
+        let t = west.min(east).min(north).min(south) / self.blend;
+        if t >= 1.0 {
+            return (w, 0.0, 0.0);
+        }
+        let slope = 6.0 * t * (1.0 - t) / self.blend;
+        // d(texel x)/d lon = 1 / cell_lon; d(texel y)/d lat = −1 / cell_lat.
+        let (d_lat, d_lon) = if west.min(east) <= north.min(south) {
+            let sign = if west <= east { 1.0 } else { -1.0 };
+            (0.0, sign / self.cell_lon())
+        } else {
+            let sign = if north <= south { -1.0 } else { 1.0 };
+            (sign / self.cell_lat(), 0.0)
+        };
+        (w, slope * d_lat, slope * d_lon)
+    }
+
     /// Whether this tile's box and `other`'s share a positive area.
     pub fn overlaps(&self, other: &TileGrid) -> bool {
         self.lat_min < other.lat_max

@@ -225,9 +225,10 @@ pub fn project(field: &StarField, scene: &Scene, margin: f64) -> Vec<ProjectedSt
                 return None;
             }
             // Through the lens where the camera has one: the body's image
-            // is resampled onto the distorted pixels, so the stars must be too.
+            // is resampled onto the distorted pixels, so the stars must be
+            // too (none beyond the lens's field, where the polynomial folds).
             let (u, v) = match &cam.distortion {
-                Some(lens) => lens.intrinsics.direction_to_pixel(c)?,
+                Some(lens) => lens.project(c)?,
                 None => pin.project(c),
             };
             if !(u > -margin && u < w + margin && v > -margin && v < h + margin) {

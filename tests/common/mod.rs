@@ -454,3 +454,21 @@ pub fn crater_exit(p: DVec3, dir: DVec3, centre: DVec3, a: f64, r: f64) -> DVec3
     }
     at(0.5 * (lo + hi)) * r
 }
+
+/// |image / truth − 1| over the pixels whose truth is above 1 % of its
+/// peak, sorted ascending.
+pub fn sorted_relative_errors(image: &[f32], truth: &[f32]) -> Vec<f64> {
+    let peak = truth.iter().copied().fold(0.0f32, f32::max) as f64;
+    let mut e: Vec<f64> = (0..truth.len())
+        .filter(|&k| truth[k] as f64 > 0.01 * peak)
+        .map(|k| (image[k] as f64 / truth[k] as f64 - 1.0).abs())
+        .collect();
+    e.sort_by(f64::total_cmp);
+    e
+}
+
+/// The nearest-rank `q` quantile of ascending `sorted` values.
+pub fn nearest_rank(sorted: &[f64], q: f64) -> f64 {
+    let rank = (q * sorted.len() as f64).ceil() as usize;
+    sorted[rank.clamp(1, sorted.len()) - 1]
+}
