@@ -227,7 +227,7 @@ jitter_deg = 0.5
 random_body_attitude = true
 "#;
 
-/// A scene that reads no file.
+/// A scene that reads no file, with a sensor chain (its keys mutate too).
 const SCENE_SEED: &str = r#"[camera]
 resolution = [64, 48]
 pixel_pitch = 13.3e-6
@@ -237,6 +237,14 @@ exposure = 2.0e-5
 full_well = 1.0e5
 bits = 12
 band = [450e-9, 820e-9]
+
+[camera.sensor]
+seed = 3
+dark_current = 20.0
+read_noise = 5.0
+nonlinearity = 0.01
+row_noise = 1.5
+shot_noise = true
 
 [sun]
 spectrum = "blackbody"

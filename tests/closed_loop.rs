@@ -28,7 +28,10 @@
 //! dark current × t, divided by the camera's own flat (vignetting × PRNU,
 //! which `render` does not model), equal `render`'s electrons.
 //! Thresholds (the figures README.md quotes, over seeds 1–10): disk signal
-//! within 0.5 %, p95 of the per-pixel error within 2 % over every disk
+//! within what the run claims, the k = 2 uncertainty of the disk flux it
+//! quotes (its summary's `radiometric_u_k2_percent_max`, from the LUT's
+//! budget), that claim itself at most 1 % (what README.md tells a user
+//! this facility achieves), p95 of the per-pixel error within 2 % over every disk
 //! pixel whose target is above the screen's black level and which the limb
 //! does not cross (those judge the limb's position), centroid and lit
 //! limb within 0.02 camera px, and the campaign's own verify passes.
@@ -342,8 +345,8 @@ responsivity = "{responsivity}"
     /// 16, 24, 32 and 40 (each integrating the eight presents before it),
     /// in flight electrons. Four frames, not one, so that the camera's own
     /// noise (a measurement's, not the facility's) does not set the
-    /// per-pixel figure.
-    fn run_and_capture(&self, tag: &str, facility: String) -> Vec<f64> {
+    /// per-pixel figure. With the run's own quoted uncertainty.
+    fn run_and_capture(&self, tag: &str, facility: String) -> Capture {
         let f = self.write_facility(&format!("{tag}.toml"), facility);
         let caps = self.path(&format!("cap_{tag}"));
         let (log, summary) = (
@@ -376,7 +379,14 @@ responsivity = "{responsivity}"
                 *m += d as f64 / frames.len() as f64;
             }
         }
-        self.electrons(&mean)
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+        Capture {
+            electrons: self.electrons(&mean),
+            u_k2: summary["radiometric_u_k2_percent_max"]
+                .as_f64()
+                .map(|u| u / 100.0),
+        }
     }
 
     /// Flight electrons of a capture, from the simulator's truth: bias,
@@ -446,6 +456,25 @@ fn reference_of(path: &Path) -> Reference {
     }
 }
 
+/// A run's camera frames in flight electrons, and the expanded uncertainty
+/// (k = 2, a fraction) the run quotes for the disk flux it showed: the
+/// summary's `radiometric_u_k2_percent_max` (None for a LUT without its
+/// uncertainty column, as the simulator's true files).
+struct Capture {
+    electrons: Vec<f64>,
+    u_k2: Option<f64>,
+}
+
+/// The disk-signal limit for a run whose LUT quotes no uncertainty (the
+/// simulator's true files): the chain's own error (blur, noise, dithering,
+/// the mura and glare no file corrects).
+const DISK_LIMIT_UNQUOTED: f64 = 0.005;
+
+/// The largest k = 2 uncertainty of the disk flux an honest campaign on
+/// this facility may quote (README.md, "How well it works"; measured
+/// 0.75–0.91 % over seeds 1–10, docs/CALIBRATION.md).
+const U_K2_QUOTED: f64 = 0.01;
+
 /// The comparison's numbers.
 #[derive(Debug)]
 struct Comparison {
@@ -459,12 +488,21 @@ struct Comparison {
     centroid: (f64, f64),
     /// Lit-limb position offset sim − render along x, camera px.
     limb: f64,
+    /// The run's own quoted k = 2 uncertainty of the disk flux (fraction).
+    u_k2: Option<f64>,
 }
 
 impl Comparison {
-    /// Within the thresholds README.md quotes.
+    /// The disk signal's limit: what the run claims (its k = 2
+    /// uncertainty), or [`DISK_LIMIT_UNQUOTED`] when it claims nothing.
+    fn disk_limit(&self) -> f64 {
+        self.u_k2.unwrap_or(DISK_LIMIT_UNQUOTED)
+    }
+
+    /// Within the thresholds README.md quotes: the disk signal within the
+    /// run's own claim, the rest fixed.
     fn passes(&self) -> bool {
-        self.disk_signal.abs() <= 0.005
+        self.disk_signal.abs() <= self.disk_limit()
             && self.p95 <= 0.02
             && self.centroid.0.abs() <= 0.02
             && self.centroid.1.abs() <= 0.02
@@ -491,9 +529,10 @@ fn honest_campaigns_reproduce_the_render_over_ten_seeds() {
     for seed in 1..=10 {
         let (cmp, verified, report) = honest_loop(seed);
         println!(
-            "seed {seed:2}: disk {:+.3} %, p95 {:.2} %, centroid ({:+.4}, {:+.4}) px, limb {:+.4} px; \
-             verify {} (max |error| {:.2} %, {} patches beyond their uncertainty)",
+            "seed {seed:2}: disk {:+.3} % (quoted k = 2: {:.3} %), p95 {:.2} %, centroid ({:+.4}, {:+.4}) px, \
+             limb {:+.4} px; verify {} (max |error| {:.2} %, {} patches beyond their uncertainty)",
             100.0 * cmp.disk_signal,
+            100.0 * cmp.u_k2.unwrap_or(f64::NAN),
             100.0 * cmp.p95,
             cmp.centroid.0,
             cmp.centroid.1,
@@ -512,15 +551,28 @@ fn honest_campaigns_reproduce_the_render_over_ten_seeds() {
         )
     };
     let d = range(&|c| 100.0 * c.disk_signal);
+    let u = range(&|c| 100.0 * c.u_k2.unwrap_or(f64::NAN));
     let p = range(&|c| 100.0 * c.p95);
     let cx = range(&|c| c.centroid.0.abs().max(c.centroid.1.abs()));
     let l = range(&|c| c.limb.abs());
+    let disks: Vec<f64> = results.iter().map(|r| 100.0 * r.1.disk_signal).collect();
+    let n = disks.len() as f64;
+    let mean = disks.iter().sum::<f64>() / n;
+    let sd = (disks.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
     println!(
-        "seeds 1-10: disk {:+.3} .. {:+.3} %, p95 {:.2} .. {:.2} %, |centroid| <= {:.4} px, |limb| <= {:.4} px",
-        d.0, d.1, p.0, p.1, cx.1, l.1
+        "seeds 1-10: disk {:+.3} .. {:+.3} % (mean {mean:+.3} %, sd {sd:.3} %), quoted k = 2 {:.3} .. {:.3} %, \
+         p95 {:.2} .. {:.2} %, |centroid| <= {:.4} px, |limb| <= {:.4} px",
+        d.0, d.1, u.0, u.1, p.0, p.1, cx.1, l.1
     );
     for (seed, cmp, verified) in &results {
         assert!(*verified, "seed {seed}: the campaign fails its own verify");
+        let u = cmp.u_k2.expect("the calibrated LUT quotes its uncertainty");
+        assert!(
+            u <= U_K2_QUOTED,
+            "seed {seed}: the run quotes {:.3} %, more than the {:.2} % README.md states",
+            100.0 * u,
+            100.0 * U_K2_QUOTED
+        );
         assert!(cmp.passes(), "seed {seed}: {cmp:?}");
     }
 }
@@ -802,7 +854,8 @@ fn limb_x(img: &[f64], row: usize) -> f64 {
 /// The comparison of `sim` with `reference` over the disk; the per-pixel
 /// error over pixels whose reference is above `floor` electrons (the
 /// screen's black level).
-fn compare(sim: &[f64], reference: &[f64], floor: f64) -> Comparison {
+fn compare(capture: &Capture, reference: &[f64], floor: f64) -> Comparison {
+    let sim = &capture.electrons[..];
     let mask = disk_mask(reference, 3);
     let sum = |v: &[f64]| {
         v.iter()
@@ -827,6 +880,7 @@ fn compare(sim: &[f64], reference: &[f64], floor: f64) -> Comparison {
         p95: errors[errors.len() * 95 / 100],
         centroid: (cs.0 - cr.0, cs.1 - cr.1),
         limb: limb_x(sim, row) - limb_x(reference, row),
+        u_k2: capture.u_k2,
     }
 }
 

@@ -345,6 +345,17 @@ fn bad_sensor_keys_are_one_line_errors_naming_the_key() {
             "camera.sensor.transfer_time",
         ),
         ("dsnu = 3.0", "dsnu = 3.0\nsmear = 1", "smear"),
+        (
+            "dsnu = 3.0",
+            "dsnu = 3.0\nnonlinearity = 0.6",
+            "camera.sensor.nonlinearity",
+        ),
+        (
+            "dsnu = 3.0",
+            "dsnu = 3.0\nrow_noise = -2",
+            "camera.sensor.row_noise",
+        ),
+        ("dsnu = 3.0", "dsnu = 3.0\nshot_noise = 1", "shot_noise"),
     ] {
         assert!(good.contains(from), "{from}");
         let text = good.replace(from, to);
@@ -357,4 +368,27 @@ fn bad_sensor_keys_are_one_line_errors_naming_the_key() {
         );
         assert!(!err.contains('\n'), "{err}");
     }
+}
+
+/// The facility camera's effects are `[camera.sensor]` keys too: they
+/// reach the sensor's parameters, and are off when absent.
+#[test]
+fn non_linearity_row_noise_and_shot_noise_keys_reach_the_sensor() {
+    let off = flat_scene(16, 1, "").camera.sensor.expect("sensor");
+    assert_eq!(
+        (off.nonlinearity, off.row_noise, off.shot_noise),
+        (0.0, 0.0, true)
+    );
+    let on = flat_scene(
+        16,
+        1,
+        "nonlinearity = 0.02\nrow_noise = 3.5\nshot_noise = false",
+    )
+    .camera
+    .sensor
+    .expect("sensor");
+    assert_eq!(
+        (on.nonlinearity, on.row_noise, on.shot_noise),
+        (0.02, 3.5, false)
+    );
 }

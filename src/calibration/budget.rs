@@ -9,6 +9,7 @@
 //! | meter scale | `calibrate.meter.scale_uncertainty_k2_percent` (the meter's own calibration) |
 //! | spectral mismatch | \|F(S shifted by `screen_spectrum_uncertainty_nm`) / F − 1\|, the larger of ±shift |
 //! | scale fit | 2 × the standard error of the meter/camera ratios the scale is fitted to |
+//! | spectral trend | 2 × \|s / r_top − 1\| / √3: the fitted scale s against the top level's own ratio r_top, where the screen shows the white whose spectrum F comes from (a broadband meter only; greys whose spectrum differs carry their F error into s) |
 //! | drift | 2 × \|drift\| / √3 (the reference's change over the campaign, as a rectangular bound) |
 //!
 //! A component that is not declared counts 0 and the report says so.
@@ -29,6 +30,9 @@ pub struct Budget {
     pub mismatch_k2_percent: Option<f64>,
     /// The absolute scale's statistical uncertainty.
     pub scale_fit_k2_percent: f64,
+    /// The scale's departure from the white's own ratio ([`spectral_trend_k2_percent`]).
+    #[serde(default)]
+    pub spectral_trend_k2_percent: f64,
     /// The campaign's drift.
     pub drift_k2_percent: f64,
 }
@@ -48,6 +52,7 @@ impl Budget {
             self.meter_scale_k2_percent.unwrap_or(0.0),
             self.mismatch_k2_percent.unwrap_or(0.0),
             self.scale_fit_k2_percent,
+            self.spectral_trend_k2_percent,
             self.drift_k2_percent,
         ]
         .iter()
@@ -79,10 +84,11 @@ impl Budget {
     pub fn describe(&self) -> String {
         let opt = |v: Option<f64>| v.map_or("not declared".to_string(), |v| format!("{v:.3} %"));
         format!(
-            "uncertainty (k = 2): meter scale {}, spectral mismatch {}, scale fit {:.3} %, drift {:.3} %; per level also noise and fit (column uncertainty_k2_percent)",
+            "uncertainty (k = 2): meter scale {}, spectral mismatch {}, scale fit {:.3} %, spectral trend {:.3} %, drift {:.3} %; per level also noise and fit (column uncertainty_k2_percent)",
             opt(self.meter_scale_k2_percent),
             opt(self.mismatch_k2_percent),
             self.scale_fit_k2_percent,
+            self.spectral_trend_k2_percent,
             self.drift_k2_percent
         )
     }
@@ -120,6 +126,18 @@ pub fn scale_fit_k2_percent(ratios: &[f64]) -> f64 {
     200.0 * (var / n).sqrt() / mean.abs()
 }
 
+/// 2 × |`scale` / `top_ratio` − 1| / √3, %: the fitted scale against the
+/// top level's own meter/camera ratio, as a rectangular bound (like the
+/// drift). A broadband meter's F is the white's; the greys that also set
+/// the scale may have another spectrum (an LCD's channels follow their own
+/// tone curves), and this is the trend they carry into it.
+pub fn spectral_trend_k2_percent(scale: f64, top_ratio: f64) -> f64 {
+    if !(scale.is_finite() && top_ratio.is_finite() && top_ratio > 0.0) {
+        return 0.0;
+    }
+    200.0 * (scale / top_ratio - 1.0).abs() / 3f64.sqrt()
+}
+
 /// 2 × |drift| / √3, %.
 pub fn drift_k2_percent(drift_percent: f64) -> f64 {
     2.0 * drift_percent.abs() / 3f64.sqrt()
@@ -135,6 +153,7 @@ mod tests {
             meter_scale_k2_percent: Some(3.0),
             mismatch_k2_percent: None,
             scale_fit_k2_percent: 0.0,
+            spectral_trend_k2_percent: 0.0,
             drift_k2_percent: drift_k2_percent(3f64.sqrt() * 2.0),
         };
         assert!((b.drift_k2_percent - 4.0).abs() < 1e-12);
@@ -147,5 +166,14 @@ mod tests {
         // Ratios 1, 2, 3: mean 2, sd 1, se 1/√3 → 2·(1/√3)/2 = 57.7 %.
         assert!((scale_fit_k2_percent(&[1.0, 2.0, 3.0]) - 100.0 / 3f64.sqrt()).abs() < 1e-9);
         assert!(b.describe().contains("spectral mismatch not declared"));
+        // A scale 0.3 % above the white's ratio: 2 · 0.3 / √3 = 0.3464 %.
+        let t = spectral_trend_k2_percent(1.003, 1.0);
+        assert!((t - 0.6 / 3f64.sqrt()).abs() < 1e-9, "{t}");
+        assert_eq!(spectral_trend_k2_percent(1.0, 0.0), 0.0);
+        let with = Budget {
+            spectral_trend_k2_percent: 12.0,
+            ..b.clone()
+        };
+        assert!((with.scale_total() - 13.0).abs() < 1e-12);
     }
 }

@@ -177,6 +177,7 @@ pub fn run(inst: &mut Instruments, setup: &mut Setup, ckpt: &mut Checkpoint) -> 
         meter_scale_k2_percent: scale.meter_k2_percent,
         mismatch_k2_percent: scale.mismatch_k2_percent,
         scale_fit_k2_percent: scale.fit_k2_percent,
+        spectral_trend_k2_percent: scale.spectral_trend_k2_percent,
         drift_k2_percent: budget::drift_k2_percent(drift_percent),
     };
     for l in &mut levels {
@@ -448,6 +449,7 @@ struct Scale {
     fit_k2_percent: f64,
     meter_k2_percent: Option<f64>,
     mismatch_k2_percent: Option<f64>,
+    spectral_trend_k2_percent: f64,
 }
 
 /// Fraction of the top level's signal above which the meter sets the
@@ -480,6 +482,7 @@ fn absolute_scale(
             fit_k2_percent: 0.0,
             meter_k2_percent: None,
             mismatch_k2_percent: None,
+            spectral_trend_k2_percent: 0.0,
         });
     }
     let _ = ambient;
@@ -514,10 +517,16 @@ fn absolute_scale(
         }
         _ => None,
     };
+    // The top level shows the white F comes from (a broadband meter's F).
+    let spectral_trend_k2_percent = match (mismatch, ratios.last()) {
+        (Some(_), Some(&top_ratio)) => budget::spectral_trend_k2_percent(num / den, top_ratio),
+        _ => 0.0,
+    };
     Ok(Scale {
         factor: num / den,
         method,
         mismatch,
+        spectral_trend_k2_percent,
         fit_k2_percent: budget::scale_fit_k2_percent(&ratios),
         meter_k2_percent: cfg
             .meter

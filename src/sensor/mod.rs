@@ -15,6 +15,12 @@
 //! 5. full-well clip, system gain K [DN/e⁻], offset, rounding and the ADC
 //!    range [0, 2^bits − 1].
 //!
+//! Three optional effects ([`extras`], off by default) complete it for the
+//! simulated facility's camera, which reads out through this same chain:
+//! the non-linearity e (1 − β e / full_well) of the charge before the read
+//! noise (the clip then sits at the full well's response), a per-row offset
+//! σ_row · N(0, 1) added with the read noise, and shot noise off.
+//!
 //! PRNU_k = max(0, 1 + prnu · N(0, 1)) and DSNU_k = dsnu · N(0, 1) are
 //! fixed per pixel by `seed`; the temporal noise of frame f is drawn from
 //! (seed, f, pixel), so a frame is reproducible whatever the thread count.
@@ -30,11 +36,13 @@
 //! that distribution's mean over the cell, with 16 bits of one 64-bit hash
 //! per pixel (4 pixels a hash); the table's mean is exact and its variance
 //! within 10⁻⁵ of d + σ² (tests/sensor_dark_table.rs, which also checks
-//! dark frames' DN histograms by chi-square and KS). The table applies
-//! when σ_read > 0 and no dark pixel can reach the full well; other pixels
-//! are drawn one by one as above.
+//! dark frames' DN histograms by chi-square and KS). A row offset shifts
+//! it like DSNU. The table applies when σ_read > 0, shot noise is on, β is
+//! 0 and no dark pixel can reach the full well; other pixels are drawn one
+//! by one as above.
 
 pub mod dark;
+pub mod extras;
 pub mod rng;
 
 use std::sync::Arc;
@@ -77,6 +85,13 @@ pub struct SensorFile {
     transfer_time: f64,
     #[serde(default)]
     blooming: bool,
+    #[serde(default)]
+    nonlinearity: f64,
+    #[serde(default)]
+    row_noise: f64,
+    /// Absent: on.
+    #[serde(default)]
+    shot_noise: Option<bool>,
 }
 
 /// Checked sensor parameters (the camera's full well, gain and bits
@@ -99,6 +114,12 @@ pub struct SensorParams {
     pub transfer_time: f64,
     /// Charge above the full well spills along the column.
     pub blooming: bool,
+    /// Non-linearity β: the charge reads as e (1 − β e / full_well).
+    pub nonlinearity: f64,
+    /// Per-row offset [e⁻ rms], the same along a row of one frame.
+    pub row_noise: f64,
+    /// Poisson charge (true) or its mean (false).
+    pub shot_noise: bool,
 }
 
 impl SensorFile {
@@ -113,6 +134,9 @@ impl SensorFile {
             offset: range(self.offset, 0.0, max_dn, "offset")?,
             transfer_time: range(self.transfer_time, 0.0, 1e3, "transfer_time")?,
             blooming: self.blooming,
+            nonlinearity: range(self.nonlinearity, 0.0, 0.5, "nonlinearity")?,
+            row_noise: range(self.row_noise, 0.0, 1e6, "row_noise")?,
+            shot_noise: self.shot_noise.unwrap_or(true),
         })
     }
 }
@@ -159,6 +183,9 @@ pub struct Sensor {
     dsnu_max: f64,
     /// `readout.max_dn()`, computed once (it is a power of two less one).
     max_dn: f64,
+    /// The charge the clip after the read noise caps at: the full well's
+    /// response ([`extras::response`]; the full well when β = 0).
+    full_scale: f64,
 }
 
 /// One frame read out.
@@ -196,6 +223,7 @@ impl Sensor {
             dsnu,
             dsnu_max,
             max_dn: readout.max_dn(),
+            full_scale: extras::response(readout.full_well, params.nonlinearity, readout.full_well),
         }
     }
 
@@ -237,17 +265,19 @@ impl Sensor {
     pub fn expose(&self, rate: &[f32], exposure: f64, frame: u64) -> SensorFrame {
         assert_eq!(rate.len(), self.width * self.height, "rate image size");
         let w = self.width;
+        let stream = Stream::new(self.params.seed, FRAME_STREAM + frame);
         // Each row's span from its first to its last lit pixel.
         let spans: Vec<Option<(usize, usize)>> = rate.par_chunks(w).map(lit_span).collect();
         let draw = Draw {
             smear: self.smear_in(rate, &spans),
             dark: DarkDraw::new(self.params.dark_current * exposure),
             exposure,
-            stream: Stream::new(self.params.seed, FRAME_STREAM + frame),
+            rows: extras::row_offsets(&stream, rate.len(), self.height, self.params.row_noise),
+            stream,
         };
         let full_well = self.readout.full_well;
         let bloom = self.params.blooming;
-        let table = self.dark_table(exposure);
+        let table = self.dark_table(exposure, &draw.rows);
         let dark = (*table).as_ref().map(|t| DarkLookup::new(t, self, frame));
         let smeared = runs(&draw.smear);
         let mut dn = vec![0u16; rate.len()];
@@ -262,7 +292,8 @@ impl Sensor {
                 let mut over = Vec::new();
                 for_segments(w, &smeared, spans[j], |a, b, is_lit| match &dark {
                     Some(dark) if !is_lit => {
-                        dark.fill(&mut row[a..b], j * w + a, &self.dsnu[j * w + a..][..b - a])
+                        let dsnu = &self.dsnu[j * w + a..][..b - a];
+                        dark.fill(&mut row[a..b], j * w + a, dsnu, draw.rows[j] as f32)
                     }
                     _ => {
                         for (i, out) in row.iter_mut().enumerate().take(b).skip(a) {
@@ -270,7 +301,7 @@ impl Sensor {
                             if bloom && q > full_well {
                                 over.push(i);
                             }
-                            *out = self.digitise(q + r);
+                            *out = self.digitise(q, r + draw.rows[j]);
                         }
                     }
                 });
@@ -281,7 +312,7 @@ impl Sensor {
         over.dedup();
         self.bloom_columns(&over, rate, &draw, &mut dn);
         let r = &self.readout;
-        let sat_dn = (self.params.offset + r.gain * r.full_well)
+        let sat_dn = (self.params.offset + r.gain * self.full_scale)
             .round()
             .min(r.max_dn());
         let saturated = dn.par_iter().filter(|&&v| v as f64 >= sat_dn).count() as u64;
@@ -289,12 +320,19 @@ impl Sensor {
     }
 
     /// The table of this exposure's dark pixels, when one applies: read
-    /// noise > 0 and no dark pixel can reach the full well (so neither
-    /// the clip nor blooming concerns them).
-    fn dark_table(&self, exposure: f64) -> Arc<Option<DarkTable>> {
-        let table = DarkTable::shared(self.params.dark_current * exposure, self.params.read_noise);
+    /// noise > 0, shot noise on, no non-linearity (the table holds the
+    /// linear charge plus read noise) and no dark pixel can reach the full
+    /// well with its DSNU and row offset `rows` (so neither the clip nor
+    /// blooming concerns them).
+    fn dark_table(&self, exposure: f64, rows: &[f64]) -> Arc<Option<DarkTable>> {
+        let p = &self.params;
+        if !p.shot_noise || p.nonlinearity != 0.0 {
+            return Arc::new(None);
+        }
+        let row_max = rows.iter().copied().fold(0.0, f64::max);
+        let table = DarkTable::shared(p.dark_current * exposure, p.read_noise);
         match table.as_ref() {
-            Some(t) if t.upper + self.dsnu_max < self.readout.full_well => table,
+            Some(t) if t.upper + self.dsnu_max + row_max < self.readout.full_well => table,
             _ => Arc::new(None),
         }
     }
@@ -313,7 +351,8 @@ impl Sensor {
                 let column = charge
                     .iter()
                     .zip(&read)
-                    .map(|(&q, &r)| self.digitise(q + r))
+                    .enumerate()
+                    .map(|(j, (&q, &r))| self.digitise(q, r + draw.rows[j]))
                     .collect();
                 (i, column)
             })
@@ -334,6 +373,11 @@ impl Sensor {
     fn collect(&self, rate: &[f32], draw: &Draw, column: usize, k: usize) -> (f64, f64) {
         let smear = draw.smear[column];
         let light = self.prnu[k] as f64 * (rate[k] as f64 * draw.exposure + smear);
+        if !self.params.shot_noise {
+            let (_, v) = rng::two_uniforms_of(draw.stream.bits(k as u64));
+            let read = self.params.read_noise * rng::normal_quantile_fast(v);
+            return (draw.dark.mean + light + self.dsnu[k] as f64, read);
+        }
         let mean = draw.dark.mean + light;
         let (u, v) = rng::two_uniforms_of(draw.stream.bits(k as u64));
         let electrons = if mean >= rng::NORMAL_POISSON {
@@ -353,12 +397,14 @@ impl Sensor {
         (electrons + self.dsnu[k] as f64, read)
     }
 
-    /// Step 5: full well, gain, offset, rounding and the ADC range.
+    /// Step 5 on charge `charge` and read (and row) noise `noise` [e⁻]:
+    /// the non-linearity, full well, gain, offset, rounding and ADC range.
     #[inline]
-    fn digitise(&self, electrons: f64) -> u16 {
+    fn digitise(&self, charge: f64, noise: f64) -> u16 {
         let r = &self.readout;
+        let electrons = extras::response(charge, self.params.nonlinearity, r.full_well) + noise;
         // max/min, not clamp: no range assertion per pixel.
-        (self.params.offset + r.gain * electrons.min(r.full_well))
+        (self.params.offset + r.gain * electrons.min(self.full_scale))
             .round()
             .max(0.0)
             .min(self.max_dn.min(u16::MAX as f64)) as u16
@@ -416,15 +462,15 @@ impl DarkLookup {
         }
     }
 
-    /// Steps 2–5 for dark pixels `k0..k0 + out.len()` of DSNU `dsnu`:
-    /// pixel k takes bits 16 (k mod 4) to 16 (k mod 4) + 15 of the hash
-    /// of k / 4 as its table cell.
-    fn fill(&self, out: &mut [u16], k0: usize, dsnu: &[f32]) {
+    /// Steps 2–5 for dark pixels `k0..k0 + out.len()` of DSNU `dsnu`, in
+    /// a row of offset `row` [e⁻]: pixel k takes bits 16 (k mod 4) to
+    /// 16 (k mod 4) + 15 of the hash of k / 4 as its table cell.
+    fn fill(&self, out: &mut [u16], k0: usize, dsnu: &[f32], row: f32) {
         let head = ((4 - k0 % 4) % 4).min(out.len());
         let (first, rest) = out.split_at_mut(head);
         for (i, (o, &s)) in first.iter_mut().zip(dsnu).enumerate() {
             let k = k0 + i;
-            *o = self.level(self.stream.bits((k / 4) as u64), k % 4, s);
+            *o = self.level(self.stream.bits((k / 4) as u64), k % 4, s + row);
         }
         let group0 = (k0 + head) / 4;
         let tail_group = group0 + rest.len() / 4;
@@ -433,21 +479,22 @@ impl DarkLookup {
         for (g, (o, s)) in (&mut outs).zip(&mut offsets).enumerate() {
             let bits = self.stream.bits((group0 + g) as u64);
             for lane in 0..4 {
-                o[lane] = self.level(bits, lane, s[lane]);
+                o[lane] = self.level(bits, lane, s[lane] + row);
             }
         }
         let bits = self.stream.bits(tail_group as u64);
         let tail = outs.into_remainder();
         for (lane, (o, &s)) in tail.iter_mut().zip(offsets.remainder()).enumerate() {
-            *o = self.level(bits, lane, s);
+            *o = self.level(bits, lane, s + row);
         }
     }
 
-    /// One dark pixel in lane `lane` of `bits`, of DSNU `dsnu` [e⁻]: DN.
+    /// One dark pixel in lane `lane` of `bits`, shifted by `shift` (its
+    /// DSNU plus its row's offset) [e⁻]: DN.
     #[inline]
-    fn level(&self, bits: u64, lane: usize, dsnu: f32) -> u16 {
+    fn level(&self, bits: u64, lane: usize, shift: f32) -> u16 {
         let cell = (bits >> (16 * lane)) as u16;
-        let v = self.dn[cell as usize] + self.gain * dsnu;
+        let v = self.dn[cell as usize] + self.gain * shift;
         v.round().max(0.0).min(self.max_dn) as u16
     }
 }
@@ -522,6 +569,8 @@ struct Draw {
     exposure: f64,
     /// The frame's random stream: pixel k draws from `stream.at(k)`.
     stream: Stream,
+    /// Row offsets [e⁻] ([`extras::row_offsets`]).
+    rows: Vec<f64>,
 }
 
 /// The dark charge's mean over one exposure and, below 30 e⁻, its e^(−mean).
@@ -637,6 +686,9 @@ mod tests {
             offset: 0.0,
             transfer_time: 0.01,
             blooming: false,
+            nonlinearity: 0.0,
+            row_noise: 0.0,
+            shot_noise: true,
         };
         let readout = Readout {
             full_well: 1e9,

@@ -1,6 +1,7 @@
-//! The simulated facility camera's static tables and its detector chain:
-//! where each camera pixel looks on the screen, its etendue, its own flat
-//! (vignetting × PRNU), and a capture from what the screen showed.
+//! The simulated facility camera's optics and its capture: where each
+//! camera pixel looks on the screen, its etendue, its vignetting, the
+//! veiling glare, and a capture from what the screen showed, read out by
+//! the one detector model `render` also uses ([`crate::sensor`]).
 //!
 //! Electrons of pixel (i, j) over an exposure t:
 //!
@@ -17,25 +18,21 @@
 //! screen's piecewise-constant image would alias them away). Without distortion A Ω cos θ is exactly the
 //! renderer's factor (`render::detector`: pupil area × exact Ω × dir.z), so
 //! the two agree. Veiling glare adds `veiling_glare` × the image's mean
-//! signal to every pixel. Then dark electrons, shot noise (Poisson),
-//! clipping at the full well, the non-linearity e (1 − β e / full_well),
-//! read noise (Gaussian) and a per-row offset (Gaussian, the same along a
-//! row of one frame), gain, bias, rounding and clipping to [0, largest DN].
+//! signal to every pixel. The detector is [`crate::sensor::Sensor`] with
+//! the camera's keys mapped by [`sensor_params`]: PRNU (its map is the
+//! camera's own flat's non-optical part, g = vignetting × PRNU), dark
+//! electrons, shot noise (Poisson), the non-linearity e (1 − β e /
+//! full_well), read noise and a per-row offset (the same along a row of
+//! one frame), the clip at the full well's response, gain, bias, rounding
+//! and clipping to [0, largest DN]; capture `index` is the sensor's frame.
 
 use rayon::prelude::*;
 
 use super::config::CameraTruth;
-use super::noise::Rng;
 use super::optics::{triangle_solid_angle, CameraOptics, Collimator};
 use super::screen::ScreenPhysics;
 use crate::error::{Error, Result};
-
-/// Random stream of the PRNU map.
-const PRNU_STREAM: u64 = 1;
-/// Random streams of captures start here (+ capture index).
-const CAPTURE_STREAM: u64 = 1 << 32;
-/// Random streams of captures' row offsets start here (+ capture index).
-const ROW_STREAM: u64 = 1 << 40;
+use crate::sensor::{Readout, Sensor, SensorParams};
 
 /// A frame the screen showed during an exposure, with its share of it.
 #[derive(Debug, Clone)]
@@ -57,8 +54,10 @@ pub struct CameraModel {
     corners: Vec<[f64; 2]>,
     /// A_pupil Ω cos θ per pixel, m² sr.
     etendue: Vec<f64>,
-    /// Vignetting × PRNU.
-    flat: Vec<f32>,
+    /// Vignetting (the optical part of the flat).
+    vignetting: Vec<f32>,
+    /// The detector, its PRNU map seeded by the facility's seed.
+    sensor: Sensor,
 }
 
 impl CameraModel {
@@ -94,13 +93,15 @@ impl CameraModel {
                 pupil * omega / (1.0 + x * x + y * y).sqrt()
             })
             .collect();
-        let flat = own_flat(cfg, seed);
+        let vignetting = vignetting(cfg);
+        let sensor = Sensor::new(sensor_params(cfg, seed), readout(cfg), w, h);
         Ok(CameraModel {
             cfg: cfg.clone(),
             optics,
             corners,
             etendue,
-            flat,
+            vignetting,
+            sensor,
         })
     }
 
@@ -110,8 +111,12 @@ impl CameraModel {
     }
 
     /// Vignetting × PRNU, row-major.
-    pub fn flat(&self) -> &[f32] {
-        &self.flat
+    pub fn flat(&self) -> Vec<f32> {
+        self.vignetting
+            .iter()
+            .zip(self.sensor.prnu_map())
+            .map(|(v, g)| v * g)
+            .collect()
     }
 
     /// A_pupil Ω cos θ of each pixel, m² sr.
@@ -153,9 +158,30 @@ impl CameraModel {
         sum / (n * n) as f64
     }
 
-    /// Mean signal electrons per pixel, veiling glare included (no dark,
-    /// no noise, no clipping).
+    /// The detector (its parameters and PRNU map).
+    pub fn sensor(&self) -> &Sensor {
+        &self.sensor
+    }
+
+    /// Mean signal electrons per pixel, veiling glare and PRNU included
+    /// (no dark, no noise, no clipping).
     pub fn expected_electrons(
+        &self,
+        screen: &ScreenPhysics,
+        transmission: f64,
+        frames: &[WindowFrame],
+        exposure: f64,
+    ) -> Vec<f64> {
+        let mut signal = self.incident_electrons(screen, transmission, frames, exposure);
+        for (s, &g) in signal.iter_mut().zip(self.sensor.prnu_map()) {
+            *s *= g as f64;
+        }
+        signal
+    }
+
+    /// Mean electrons per pixel before the detector's PRNU: the screen
+    /// through the optics and the vignetting, plus the veiling glare.
+    fn incident_electrons(
         &self,
         screen: &ScreenPhysics,
         transmission: f64,
@@ -169,7 +195,7 @@ impl CameraModel {
             .into_par_iter()
             .map(|k| {
                 let rate = self.mean_rate(k % w, k / w, &image, (sw, sh));
-                exposure * transmission * self.etendue[k] * self.flat[k] as f64 * rate
+                exposure * transmission * self.etendue[k] * self.vignetting[k] as f64 * rate
             })
             .collect();
         if self.cfg.veiling_glare > 0.0 {
@@ -180,8 +206,9 @@ impl CameraModel {
         signal
     }
 
-    /// One frame in DN: signal plus dark, noise (seeded by `seed` and
-    /// `index`), full well, gain, bias, quantisation and saturation.
+    /// One frame in DN: the incident electrons read out as frame `index`
+    /// of the detector ([`crate::sensor::Sensor::expose`]). `seed` must be
+    /// the one the model was built with (the sensor's).
     pub fn capture(
         &self,
         screen: &ScreenPhysics,
@@ -191,35 +218,12 @@ impl CameraModel {
         seed: u64,
         index: u64,
     ) -> Vec<f32> {
-        let c = &self.cfg;
-        let signal = self.expected_electrons(screen, transmission, frames, exposure);
-        let dark = c.dark_current * exposure;
-        let max_dn = c.max_dn();
-        let w = c.resolution[0];
-        let rows: Vec<f64> = (0..c.resolution[1] as u64)
-            .map(|j| c.row_noise * Rng::new(seed, ROW_STREAM + index, j).normal())
-            .collect();
-        signal
-            .into_par_iter()
-            .enumerate()
-            .map(|(k, s)| {
-                let mut rng = Rng::new(seed, CAPTURE_STREAM + index, k as u64);
-                let mean = s + dark;
-                let e = if c.shot_noise {
-                    rng.poisson(mean)
-                } else {
-                    mean
-                };
-                let e = c.response(e.clamp(0.0, c.full_well));
-                let read = if c.read_noise > 0.0 {
-                    c.read_noise * rng.normal()
-                } else {
-                    0.0
-                };
-                let e = e + read + rows[k / w];
-                (e * c.gain + c.bias_dn).round().clamp(0.0, max_dn) as f32
-            })
-            .collect()
+        debug_assert_eq!(seed, self.sensor.params().seed, "the model's seed");
+        let signal = self.incident_electrons(screen, transmission, frames, exposure);
+        // The sensor takes a rate: electrons per second of the exposure.
+        let rate: Vec<f32> = signal.iter().map(|&e| (e / exposure) as f32).collect();
+        let frame = self.sensor.expose(&rate, exposure, index);
+        frame.dn.into_iter().map(f32::from).collect()
     }
 }
 
@@ -277,9 +281,38 @@ fn bilinear(u: f64, v: f64, w: usize, h: usize, value: impl Fn(usize) -> f64) ->
     (1.0 - b) * row(y0) + b * row(y1)
 }
 
-/// The camera's own flat: quadratic vignetting (`vignetting` at the corner
-/// farthest from the principal point) × seeded PRNU (1 + prnu · N(0, 1)).
-fn own_flat(cfg: &CameraTruth, seed: u64) -> Vec<f32> {
+/// The detector parameters of the camera's keys: its dark current, read
+/// noise, PRNU, bias, non-linearity, row noise and shot-noise switch, with
+/// the facility's `seed` (no DSNU, smear or blooming: the facility camera
+/// has none).
+pub fn sensor_params(cfg: &CameraTruth, seed: u64) -> SensorParams {
+    SensorParams {
+        seed,
+        dark_current: cfg.dark_current,
+        read_noise: cfg.read_noise,
+        prnu: cfg.prnu,
+        dsnu: 0.0,
+        offset: cfg.bias_dn,
+        transfer_time: 0.0,
+        blooming: false,
+        nonlinearity: cfg.nonlinearity,
+        row_noise: cfg.row_noise,
+        shot_noise: cfg.shot_noise,
+    }
+}
+
+/// The camera's full well, gain and bits.
+pub fn readout(cfg: &CameraTruth) -> Readout {
+    Readout {
+        full_well: cfg.full_well,
+        gain: cfg.gain,
+        bits: cfg.bits,
+    }
+}
+
+/// Quadratic vignetting: `vignetting` at the corner farthest from the
+/// principal point.
+fn vignetting(cfg: &CameraTruth) -> Vec<f32> {
     let [w, h] = cfg.resolution;
     let corner2 = [
         (0.0, 0.0),
@@ -296,13 +329,7 @@ fn own_flat(cfg: &CameraTruth, seed: u64) -> Vec<f32> {
         .map(|k| {
             let (x, y) = ((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
             let r2 = ((x - cfg.cx).powi(2) + (y - cfg.cy).powi(2)) / corner2;
-            let vignetting = 1.0 - cfg.vignetting * r2;
-            let prnu = if cfg.prnu > 0.0 {
-                (1.0 + cfg.prnu * Rng::new(seed, PRNU_STREAM, k as u64).normal()).max(0.0)
-            } else {
-                1.0
-            };
-            (vignetting * prnu) as f32
+            (1.0 - cfg.vignetting * r2) as f32
         })
         .collect()
 }

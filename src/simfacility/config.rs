@@ -14,7 +14,9 @@ use crate::error::{toml_message, Error, Result};
 
 /// Largest screen or camera side, pixels: keeps every buffer bounded.
 pub const MAX_SIDE: usize = 16_384;
-/// Most camera pixels (4096²): the camera's tables take ~44 bytes a pixel.
+/// Most camera pixels (4096²): the camera's tables take ~52 bytes a pixel
+/// while they are built (36 kept: screen corners, etendue, vignetting, and
+/// the sensor's PRNU and DSNU maps).
 pub const MAX_CAMERA_PIXELS: usize = 1 << 24;
 /// Most screen pixels (e.g. 8192 × 4096).
 pub const MAX_SCREEN_PIXELS: usize = 1 << 25;
@@ -204,6 +206,8 @@ pub struct CameraTruth {
     /// DN added to every pixel before quantisation.
     #[serde(default)]
     pub bias_dn: f64,
+    /// Off: the mean charge (no Poisson draw), for deterministic tests of
+    /// the optics.
     #[serde(default = "yes")]
     pub shot_noise: bool,
     /// e⁻ rms.
@@ -589,9 +593,10 @@ impl CameraTruth {
         std::f64::consts::PI * d * d / 4.0
     }
 
-    /// Collected electrons after the non-linearity: e (1 − β e / full_well).
+    /// Collected electrons after the non-linearity: e (1 − β e / full_well)
+    /// (the detector's curve, [`crate::sensor::extras::response`]).
     pub fn response(&self, electrons: f64) -> f64 {
-        electrons * (1.0 - self.nonlinearity * electrons / self.full_well)
+        crate::sensor::extras::response(electrons, self.nonlinearity, self.full_well)
     }
 
     /// DN at or above which a pixel is saturated: a full well (after the

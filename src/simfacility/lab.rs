@@ -132,11 +132,12 @@ impl SimFacility {
         let [w, h] = m.cfg.camera.resolution;
         let (rw, rh) = (REGION_SIDE.min(w), REGION_SIDE.min(h));
         let (x0, y0) = ((w - rw) / 2, (h - rh) / 2);
+        let flat = m.camera.flat();
         let mut sum = 0.0;
         for y in y0..y0 + rh {
             for x in x0..x0 + rw {
                 let k = y * w + x;
-                sum += m.camera.etendue()[k] * m.camera.flat()[k] as f64;
+                sum += m.camera.etendue()[k] * flat[k] as f64;
             }
         }
         let mean = sum / (rw * rh) as f64;

@@ -21,8 +21,8 @@
 //! | [`clock`] | the clock file that carries virtual time across commands |
 //! | [`lab`] | the camera's lab products (intrinsics, flat, responsivity) with their errors |
 //! | [`optics`] | camera intrinsics and distortion, collimator and misalignment |
-//! | [`camera`] | the camera's tables and detector chain |
-//! | [`noise`] | counter-based random numbers |
+//! | [`camera`] | the camera's optics tables and captures, read out by the one detector model ([`crate::sensor`]) |
+//! | [`noise`] | counter-based random numbers (the sensor's) |
 //! | [`pty`] | the spot meter served over a pseudo-terminal in a real meter's line protocol |
 
 pub mod camera;
@@ -233,7 +233,7 @@ impl SimFacility {
     /// renderer also applies), row-major: the truth, for tests only (a
     /// campaign's is [`Self::write_lab_camera_files`]' measured one).
     pub fn camera_flat(&self) -> Vec<f32> {
-        self.model.camera.flat().to_vec()
+        self.model.camera.flat()
     }
 
     /// Writes the camera's true own flat as a Gray32Float TIFF of the
