@@ -1594,6 +1594,10 @@ fn frame_log_records_the_shadow_decision() {
                         (0.0..90.0).contains(&s.min_sun_elevation_deg) && s.shadow_px >= 0.0,
                         "{s:?}"
                     );
+                    // No displacement here, so nothing is hidden; the edge
+                    // pass refines pixels only where shadows were cast.
+                    assert!(!s.hidden_applied, "{s:?}");
+                    assert!(applied || s.edge_pixels == 0, "{s:?}");
                 }
             }
         }

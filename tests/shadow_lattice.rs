@@ -76,8 +76,9 @@ const EDGE_POINTS: usize = 4;
 /// The factor pixel k should carry: its centre's, or where the shadow's
 /// edge crosses it (its centre in the penumbra, or an interior
 /// neighbour's centre factor different, and for a centre wholly lit or
-/// dark a 2 × 2 probe disagreeing) the mean of [`EDGE_POINTS`]² exact
-/// factors over the pixel.
+/// dark a probe at one of the four corner points of the [`EDGE_POINTS`]²
+/// disagreeing) the mean of [`EDGE_POINTS`]² exact factors over the
+/// pixel.
 fn pixel_factor(
     scene: &optistim::scene::Scene,
     map: &HorizonMap,
@@ -97,13 +98,14 @@ fn pixel_factor(
     if !penumbra && !neighbour_differs {
         return s;
     }
-    // Wholly lit or dark at the centre and at 2 × 2 probes: the edge
-    // passed beside the pixel.
+    // Wholly lit or dark at the centre and at the four corner points of
+    // the 4 × 4 below: the edge passed beside the pixel.
+    let (near, far) = (0.5 / EDGE_POINTS as f64, 1.0 - 0.5 / EDGE_POINTS as f64);
     let probe = |a: f64, b: f64| {
         exact_factor_at(scene, map, radius, i as f64 + a, j as f64 + b).unwrap_or(0.0)
     };
     if !penumbra
-        && [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
+        && [(near, near), (far, near), (near, far), (far, far)]
             .iter()
             .all(|&(a, b)| probe(a, b) == s)
     {

@@ -142,6 +142,14 @@ pub struct ShadowRecord {
     pub shadow_px: f64,
     /// Lowest Sun elevation over the visible lit disk [deg].
     pub min_sun_elevation_deg: f64,
+    /// Whether terrain hidden from the camera by nearer relief was
+    /// dropped (with the shadows and the displacement).
+    #[serde(default)]
+    pub hidden_applied: bool,
+    /// Interior pixels a shadow's edge crosses, refined over their
+    /// preimage (0 with `[render] shadow_edges = false`).
+    #[serde(default)]
+    pub edge_pixels: usize,
 }
 
 impl From<crate::render::relief::ShadowDecision> for ShadowRecord {
@@ -151,6 +159,8 @@ impl From<crate::render::relief::ShadowDecision> for ShadowRecord {
             reason: d.reason.to_string(),
             shadow_px: d.shadow_px,
             min_sun_elevation_deg: d.min_sun_elevation_deg,
+            hidden_applied: d.hidden_applied,
+            edge_pixels: d.edge_pixels,
         }
     }
 }

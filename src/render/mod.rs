@@ -267,6 +267,9 @@ impl Renderer {
             stats.total_flux += flux;
             stats.interior_pixels = self.interior.count();
             stats.interior_direct = direct;
+            if let Some(d) = &mut stats.shadows {
+                d.edge_pixels = self.interior.shadow_edges();
+            }
         }
         stats.stages.interior = t_interior.elapsed().as_secs_f64();
         self.dirty = roi;

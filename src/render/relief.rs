@@ -173,6 +173,11 @@ pub struct ShadowDecision {
     /// (a horizon lookup in the camera's azimuth): with both the shadows
     /// and the displacement.
     pub hidden_applied: bool,
+    /// Interior pixels a shadow's edge crosses, whose factor was averaged
+    /// over their preimage ([`crate::render::shadow_edges`]): 0 without
+    /// shadows, with `[render] shadow_edges = false`, or where the caps
+    /// integrate every pixel.
+    pub edge_pixels: usize,
 }
 
 /// Length on the image [px] that a shadow must reach to be applied in
