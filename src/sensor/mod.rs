@@ -252,14 +252,21 @@ impl Sensor {
         let dark = (*table).as_ref().map(|t| DarkLookup::new(t, self, frame));
         let smeared = runs(&draw.smear);
         let mut dn = vec![0u16; rate.len()];
-        // One pass draws and digitises every pixel and notes the columns
-        // holding charge over the full well; only those are bloomed. The
-        // runs of a row outside its lit span and the smeared columns are
-        // dark: drawn from the table when there is one.
-        let mut over: Vec<usize> = dn
+        let r = &self.readout;
+        // The saturation level is a whole DN in [0, max_dn] (offset ≥ 0).
+        let sat_dn = (self.params.offset + r.gain * r.full_well)
+            .round()
+            .min(r.max_dn()) as u32;
+        let saturated_in = |row: &[u16]| row.iter().filter(|&&v| v as u32 >= sat_dn).count() as u64;
+        // One pass draws and digitises every pixel, counts the saturated
+        // ones while the row is in cache and notes the columns holding
+        // charge over the full well; only those are bloomed. The runs of
+        // a row outside its lit span and the smeared columns are dark:
+        // drawn from the table when there is one.
+        let rows: Vec<(Vec<usize>, u64)> = dn
             .par_chunks_mut(w)
             .enumerate()
-            .flat_map_iter(|(j, row)| {
+            .map(|(j, row)| {
                 let mut over = Vec::new();
                 for_segments(w, &smeared, spans[j], |a, b, is_lit| match &dark {
                     Some(dark) if !is_lit => {
@@ -275,17 +282,17 @@ impl Sensor {
                         }
                     }
                 });
-                over
+                (over, saturated_in(row))
             })
             .collect();
+        let mut saturated = rows.iter().map(|(_, n)| n).sum();
+        let mut over: Vec<usize> = rows.into_iter().flat_map(|(o, _)| o).collect();
         over.sort_unstable();
         over.dedup();
-        self.bloom_columns(&over, rate, &draw, &mut dn);
-        let r = &self.readout;
-        let sat_dn = (self.params.offset + r.gain * r.full_well)
-            .round()
-            .min(r.max_dn());
-        let saturated = dn.par_iter().filter(|&&v| v as f64 >= sat_dn).count() as u64;
+        if !over.is_empty() {
+            self.bloom_columns(&over, rate, &draw, &mut dn);
+            saturated = dn.par_chunks(w).map(saturated_in).sum();
+        }
         SensorFrame { dn, saturated }
     }
 
