@@ -25,9 +25,9 @@
 //! fixed per pixel by `seed`; the temporal noise of frame f is drawn from
 //! (seed, f, pixel), so a frame is reproducible whatever the thread count.
 //! [`Sensor::shared`] keeps the maps of recent cameras, so a render loop
-//! builds them once. The light and dark charge is one Poisson draw, exact
-//! below a mean of 30 e⁻ and the rounded normal N(μ, μ) above (its mean
-//! and variance within 0.1 % of Poisson's, [`rng::Rng::poisson`]).
+//! builds them once. The light and dark charge is one exact Poisson draw
+//! ([`sampler::poisson`]: inversion below a mean of 10 e⁻, Ahrens and
+//! Dieter's PD above; tests/sensor_sampler.rs checks it against the pmf).
 //!
 //! A dark pixel (light mean exactly 0: no rate in its row span and no
 //! smear in its column) has charge Poisson(d) + σ_read N(0, 1) + DSNU_k,
@@ -44,6 +44,7 @@
 pub mod dark;
 pub mod extras;
 pub mod rng;
+pub mod sampler;
 
 use std::sync::Arc;
 
@@ -281,14 +282,21 @@ impl Sensor {
         let dark = (*table).as_ref().map(|t| DarkLookup::new(t, self, frame));
         let smeared = runs(&draw.smear);
         let mut dn = vec![0u16; rate.len()];
-        // One pass draws and digitises every pixel and notes the columns
-        // holding charge over the full well; only those are bloomed. The
-        // runs of a row outside its lit span and the smeared columns are
-        // dark: drawn from the table when there is one.
-        let mut over: Vec<usize> = dn
+        let r = &self.readout;
+        // The saturation level is a whole DN in [0, max_dn] (offset ≥ 0).
+        let sat_dn = (self.params.offset + r.gain * self.full_scale)
+            .round()
+            .min(r.max_dn()) as u32;
+        let saturated_in = |row: &[u16]| row.iter().filter(|&&v| v as u32 >= sat_dn).count() as u64;
+        // One pass draws and digitises every pixel, counts the saturated
+        // ones while the row is in cache and notes the columns holding
+        // charge over the full well; only those are bloomed. The runs of
+        // a row outside its lit span and the smeared columns are dark:
+        // drawn from the table when there is one.
+        let rows: Vec<(Vec<usize>, u64)> = dn
             .par_chunks_mut(w)
             .enumerate()
-            .flat_map_iter(|(j, row)| {
+            .map(|(j, row)| {
                 let mut over = Vec::new();
                 for_segments(w, &smeared, spans[j], |a, b, is_lit| match &dark {
                     Some(dark) if !is_lit => {
@@ -305,17 +313,17 @@ impl Sensor {
                         }
                     }
                 });
-                over
+                (over, saturated_in(row))
             })
             .collect();
+        let mut saturated = rows.iter().map(|(_, n)| n).sum();
+        let mut over: Vec<usize> = rows.into_iter().flat_map(|(o, _)| o).collect();
         over.sort_unstable();
         over.dedup();
-        self.bloom_columns(&over, rate, &draw, &mut dn);
-        let r = &self.readout;
-        let sat_dn = (self.params.offset + r.gain * self.full_scale)
-            .round()
-            .min(r.max_dn());
-        let saturated = dn.par_iter().filter(|&&v| v as f64 >= sat_dn).count() as u64;
+        if !over.is_empty() {
+            self.bloom_columns(&over, rate, &draw, &mut dn);
+            saturated = dn.par_chunks(w).map(saturated_in).sum();
+        }
         SensorFrame { dn, saturated }
     }
 
@@ -365,35 +373,28 @@ impl Sensor {
     }
 
     /// Steps 1, 2 and the draw of 4 for pixel `k` (in column `column`):
-    /// its charge (light and dark electrons, one Poisson draw of their
-    /// summed mean, plus DSNU) and its read noise [e⁻]. One 64-bit hash
-    /// gives the Poisson step's and the read noise's uniforms, 32 bits
-    /// each (they resolve a mean of 10⁻⁹ e⁻ and normal tails to 6.2 σ).
+    /// its charge (light and dark electrons, one exact Poisson draw of
+    /// their summed mean, plus DSNU) and its read noise [e⁻]. One 64-bit
+    /// hash gives 32 bits to the Poisson draw (its normal, or its uniform
+    /// below [`sampler::PD_MEAN`]) and 32 to the read noise (normal tails
+    /// to 6.2 σ); PD's further uniforms come from the pixel's generator.
     #[inline]
     fn collect(&self, rate: &[f32], draw: &Draw, column: usize, k: usize) -> (f64, f64) {
         let smear = draw.smear[column];
         let light = self.prnu[k] as f64 * (rate[k] as f64 * draw.exposure + smear);
+        let bits = draw.stream.bits(k as u64);
+        let (high, low) = ((bits >> 32) as u32, bits as u32);
+        let read = self.params.read_noise * sampler::normal_of_bits(low);
         if !self.params.shot_noise {
-            let (_, v) = rng::two_uniforms_of(draw.stream.bits(k as u64));
-            let read = self.params.read_noise * rng::normal_quantile_fast(v);
             return (draw.dark.mean + light + self.dsnu[k] as f64, read);
         }
         let mean = draw.dark.mean + light;
-        let (u, v) = rng::two_uniforms_of(draw.stream.bits(k as u64));
-        let electrons = if mean >= rng::NORMAL_POISSON {
-            (mean + mean.sqrt() * rng::normal_quantile_fast(u))
-                .round()
-                .max(0.0)
-        } else {
+        let mut more = draw.stream.at(k as u64);
+        let electrons = match draw.dark.limit {
             // e^(−mean) once per frame for a dark pixel.
-            let limit = match draw.dark.limit {
-                Some(limit) if light == 0.0 => limit,
-                _ => (-mean).exp(),
-            };
-            // Knuth's further uniforms from the pixel's generator.
-            draw.stream.at(k as u64).poisson_small_from(u, limit)
+            Some(limit) if light == 0.0 => sampler::poisson(mean, high, &mut more, || limit),
+            _ => sampler::poisson(mean, high, &mut more, || (-mean).exp()),
         };
-        let read = self.params.read_noise * rng::normal_quantile_fast(v);
         (electrons + self.dsnu[k] as f64, read)
     }
 
@@ -573,7 +574,8 @@ struct Draw {
     rows: Vec<f64>,
 }
 
-/// The dark charge's mean over one exposure and, below 30 e⁻, its e^(−mean).
+/// The dark charge's mean over one exposure and, below
+/// [`sampler::PD_MEAN`], its e^(−mean).
 struct DarkDraw {
     mean: f64,
     limit: Option<f64>,
@@ -583,7 +585,7 @@ impl DarkDraw {
     fn new(mean: f64) -> DarkDraw {
         DarkDraw {
             mean,
-            limit: (mean < rng::NORMAL_POISSON).then(|| (-mean).exp()),
+            limit: (mean < sampler::PD_MEAN).then(|| (-mean).exp()),
         }
     }
 }
