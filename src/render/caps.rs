@@ -456,6 +456,7 @@ impl Frame<'_> {
             || self.body.relief.normals.is_some()
             || self.shadows.is_some()
             || self.body.relief.albedo_tiles.is_some();
+        let widened = self.lune.widened();
         let mut total = 0.0;
         let [upper, lower] = rows;
         self.corner_row(self.theta(cell.t0), cell.s0, ds, leaf.n_s, lower);
@@ -520,7 +521,15 @@ impl Frame<'_> {
                         )
                     }
                 };
-                let omega = self.weight.at(mu0_far, mu_far);
+                // Past the sphere's limb (or within a cap of it) the
+                // closed-form weight's centre value crosses zero: the cap
+                // takes its plain area there (only with relief, which
+                // widens the lune past the limb).
+                let (w_theta, w_phi, omega) = if widened && mu_far < self.lune.k_view + d_phi {
+                    (theta0.cos() - theta1.cos(), d_phi, 1.0)
+                } else {
+                    (w_theta, w_phi, self.weight.at(mu0_far, mu_far))
+                };
                 if !(omega > 0.0) {
                     continue;
                 }
@@ -731,8 +740,7 @@ impl Frame<'_> {
         if projected <= 0.0 {
             return 0.0;
         }
-        let hidden = self.camera_visible(n_body, cam);
-        if hidden == 0.0 {
+        if self.camera_visible(n_body, cam, r) == 0.0 {
             return 0.0;
         }
         let area_scale = (r / radius) * (r / radius);
@@ -742,18 +750,38 @@ impl Frame<'_> {
             * self.relief_shadow(n_local, n_body, r)
     }
 
-    /// 0 where nearer relief hides the point of body-fixed direction
-    /// `n_body` from the camera (`cam`: the point to the camera, Lester
-    /// coordinates), else 1. Only with both the horizon map and the
-    /// displacement: the flat sphere's points are hidden by nothing.
+    /// 0 where nearer relief hides the point `r` n_body (body-fixed
+    /// direction `n_body`) from the camera (`cam`: the point to the
+    /// camera, Lester coordinates), else 1. With a displacement, a point
+    /// seeing the camera below its local horizontal (past the sphere's
+    /// limb, or raised near it) marches its line of sight through the DEM
+    /// ([`super::sight`]); above it, the horizon map in the camera's
+    /// azimuth decides where the frame applies the shadows. The flat
+    /// sphere's points are hidden by nothing.
     #[inline]
-    fn camera_visible(&self, n_body: DVec3, cam: DVec3) -> f64 {
-        let (Some(shadows), Some(_)) = (&self.shadows, self.height) else {
+    fn camera_visible(&self, n_body: DVec3, cam: DVec3, r: f64) -> f64 {
+        let Some(height) = self.height else {
             return 1.0;
         };
         let [xb, yb, zb] = self.axes_body;
         let v = (xb * cam.x + yb * cam.y + zb * cam.z).normalize();
-        shadows.camera_visible(n_body, v)
+        if v.dot(n_body) < 0.0 {
+            let relief = super::sight::Relief {
+                height: &height.0,
+                tiles: self.body.relief.height_tiles.as_deref(),
+                radius: self.radius,
+                bound: self.body.relief.height_bound,
+            };
+            return if relief.clears(n_body * r, v) {
+                1.0
+            } else {
+                0.0
+            };
+        }
+        match &self.shadows {
+            Some(shadows) => shadows.camera_visible(n_body, v),
+            None => 1.0,
+        }
     }
 }
 
