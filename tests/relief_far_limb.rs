@@ -95,16 +95,17 @@ fn measure(scene: &optistim::scene::Scene) -> Measured {
 }
 
 /// A ring ridge 40 m high (σ = 3°, 12 DEM rows) whose crest lies 6°
-/// past the sphere's limb (latitude asin(R/d) − 6°), behind a ridge 15 m
-/// high (σ = 2°) just inside the limb that hides its lower slopes, on a
+/// past the sphere's limb (latitude asin(R/d) − 6°), with a ridge 15 m
+/// high (σ = 2°) just inside the limb and one 30 m high 15° past it that
+/// stays behind the limb, on a
 /// 1000 m area-law body seen from 4 radii over its north pole, 200 px
 /// across, the Sun 5° off the camera (every visible point is lit; caps
 /// everywhere, as with a displacement): on both sides of the
 /// central row the lit disk ends where the silhouette computed here says,
 /// within 0.05 px; the light the ridge adds is its silhouette's annulus
 /// (π (r_ridge² − r_sphere²) in pixels) within 0.5 %, and no pixel holds
-/// two surfaces' radiance (the far ridge's lower slopes, behind the near
-/// one, stay hidden); a flat DEM leaves every pixel as the sphere's
+/// two surfaces' radiance (the deep ridge's slope facing the camera stays
+/// hidden behind the limb); a flat DEM leaves every pixel as the sphere's
 /// within 1e-9.
 #[test]
 fn a_ridge_past_the_limb_rises_into_the_profile() {
@@ -112,10 +113,14 @@ fn a_ridge_past_the_limb_rises_into_the_profile() {
     let mut setup = Setup::new("{ model = \"area\", albedo = 0.3 }", 5.0, 4.0, 200.0);
     let (radius, d) = (setup.radius, setup.range);
     let limb_lat = (radius / d).asin();
-    // Far ridge (past the limb) and near ridge (on it): (height, crest, σ).
+    // (height, crest, σ): the far ridge past the limb, a ridge on the
+    // limb, and a deep ridge whose camera-facing slope (up to 46°, steeper
+    // than the camera's depression there) faces the camera from behind
+    // the limb, too low to clear it (it would need R (sec 15° − 1) = 35 m).
     let ridges = [
         (40.0, limb_lat - 6f64.to_radians(), 3f64.to_radians()),
         (15.0, limb_lat + 0.5f64.to_radians(), 2f64.to_radians()),
+        (30.0, limb_lat - 15f64.to_radians(), 1f64.to_radians()),
     ];
     let rows: Vec<f64> = (0..ROWS)
         .map(|j| {
