@@ -216,7 +216,7 @@ impl Renderer {
         // Terrain past the sphere's limb that the displacement can lift
         // into view: its caps join the lune (`render::sight` hides them
         // where nearer relief covers them).
-        if frame.height.is_some() {
+        if frame.height.is_some() && body.relief.far_limb {
             frame.lune.widen_view(body.radius, body.relief.height_bound);
         }
 

@@ -118,6 +118,9 @@ pub struct Relief {
     /// model's albedo): kept here, with the relief, so that a `Body` built
     /// elsewhere needs no new field.
     pub albedo_tiles: Option<std::sync::Arc<tiles::TileSet>>,
+    /// Whether the displacement's terrain past the sphere's limb can rise
+    /// into view (`shadows.far_limb`; `render::sight`).
+    pub far_limb: bool,
 }
 
 impl Body {
@@ -517,6 +520,9 @@ pub struct ShadowsSpec {
     /// its slopes tilt the normals.
     #[serde(default)]
     pub displace: bool,
+    /// With `displace`: terrain past the sphere's limb rises into view.
+    #[serde(default)]
+    pub far_limb: bool,
 }
 
 impl ShadowsSpec {
@@ -530,6 +536,7 @@ impl ShadowsSpec {
             cache_dir: None,
             mode,
             displace,
+            far_limb: false,
         }
     }
 }
@@ -558,6 +565,7 @@ impl Relief {
             ..Relief::default()
         };
         if spec.displace {
+            relief.far_limb = spec.far_limb;
             relief.set_height(dem);
             if let Some(set) = tiles {
                 relief.set_height_tiles(std::sync::Arc::new(set));
