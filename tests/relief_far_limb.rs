@@ -1,5 +1,5 @@
 //! Relief past the sphere's limb rising into view (`[body] shadows` with
-//! `displace = true`): a ring ridge on the far side of the geometric limb,
+//! `displace = true, far_limb = true`): a ring ridge on the far side of the geometric limb,
 //! seen in profile, against the silhouette of the same DEM computed here
 //! over latitudes on both sides of the limb; the light it adds against the
 //! area of that silhouette; and no pixel lit twice where the sphere in
