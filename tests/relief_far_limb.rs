@@ -229,3 +229,26 @@ fn a_ridge_past_the_limb_rises_into_the_profile() {
         .fold(0.0, f64::max);
     assert!(worst <= 1e-9, "a flat DEM changed a pixel by {worst:e}");
 }
+
+/// `far_limb` without `displace` is refused with a one-line error naming
+/// the key.
+#[test]
+fn far_limb_needs_the_displacement() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem = dir.path().join("flat.tiff");
+    optistim::render::output::write_f32_tiff(&dem, COLS, ROWS, &vec![0.0f32; COLS * ROWS]).unwrap();
+    let mut setup = Setup::new("{ model = \"area\", albedo = 0.3 }", 5.0, 4.0, 50.0);
+    setup.extra_body = format!(
+        "shadows = {{ dem = \"{}\", scale = 1.0, far_limb = true, cache_dir = \"{}\" }}",
+        dem.display(),
+        dir.path().display()
+    );
+    let err = optistim::scene::Scene::from_toml(&setup.toml(), std::path::Path::new("t.toml"))
+        .err()
+        .expect("refused");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("body.shadows.far_limb") && !msg.contains('\n'),
+        "{msg}"
+    );
+}

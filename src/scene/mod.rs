@@ -559,6 +559,12 @@ impl Relief {
         base: &Path,
         radius: f64,
     ) -> Result<Relief> {
+        if spec.far_limb && !spec.displace {
+            return Err(Error::invalid(
+                "body.shadows.far_limb",
+                "needs `displace = true` (the far limb is the displacement's)",
+            ));
+        }
         let (shadows, dem, tiles) = relief_shadows(spec, dem_tiles, max_abs_height, base, radius)?;
         let mut relief = Relief {
             shadows: Some(std::sync::Arc::new(shadows)),
