@@ -243,9 +243,10 @@ fn far_limb_needs_the_displacement() {
         dem.display(),
         dir.path().display()
     );
-    let err = optistim::scene::Scene::from_toml(&setup.toml(), std::path::Path::new("t.toml"))
-        .err()
-        .expect("refused");
+    let Err(err) = optistim::scene::Scene::from_toml(&setup.toml(), std::path::Path::new("t.toml"))
+    else {
+        panic!("far_limb without displace was accepted");
+    };
     let msg = err.to_string();
     assert!(
         msg.contains("body.shadows.far_limb") && !msg.contains('\n'),
