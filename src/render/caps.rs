@@ -305,6 +305,40 @@ impl Frame<'_> {
         h * self.camera.fx.max(self.camera.fy) / nearest
     }
 
+    /// Whether the sample rows `ts` and columns `ss` of a cell hold points
+    /// on both sides of the sphere's limb (n·ĉ against R/D).
+    fn straddles_limb(&self, ts: &[f64; 3], ss: &[f64; 3]) -> bool {
+        let (mut inside, mut past) = (false, false);
+        for &t in ts {
+            let theta = self.theta(t);
+            for &s in ss {
+                let mu = theta.sin() * (self.phi(theta, s) - self.lune.alpha).cos();
+                inside |= mu >= self.lune.k_view;
+                past |= mu < self.lune.k_view;
+            }
+        }
+        inside && past
+    }
+
+    /// A cell's extent [px] along t and s seen face-on from the camera's
+    /// distance to the sphere's limb.
+    fn face_on_px(&self, cell: &Cell) -> (f64, f64) {
+        let (d, r) = (self.lune.camera_range, self.radius);
+        let to_limb = (d * d - r * r).max(0.0).sqrt().max(1e-3 * r);
+        let px_per_rad = self.camera.fx.max(self.camera.fy) * r / to_limb;
+        let d_theta = self.theta(cell.t1) - self.theta(cell.t0);
+        let arc = [cell.t0, 0.5 * (cell.t0 + cell.t1), cell.t1]
+            .iter()
+            .map(|&t| {
+                let st = self.theta(t).sin();
+                let (lo, hi) = self.lune.phi_range(st);
+                st * (hi - lo).max(0.0)
+            })
+            .fold(0.0, f64::max)
+            * (cell.s1 - cell.s0);
+        (d_theta * px_per_rad, arc * px_per_rad)
+    }
+
     /// Visit a cell: drop it, cut it, or store it as a leaf. Returns the
     /// pixel bounds the leaf may touch.
     pub fn visit(&self, cell: Cell, stack: &mut Vec<Cell>, leaves: &mut Vec<Leaf>) -> Option<Rect> {
@@ -364,6 +398,14 @@ impl Frame<'_> {
         for (k, row) in pts.iter().enumerate() {
             along_t = along_t.max(dist(pts[0][k], pts[1][k]) + dist(pts[1][k], pts[2][k]));
             along_s = along_s.max(dist(row[0], row[1]) + dist(row[1], row[2]));
+        }
+        // A cell across the sphere's limb folds on the image (its far part
+        // projects back inside the disk), so its projected size undercounts
+        // the caps it needs: it takes its size seen face-on there.
+        if self.lune.widened() && self.straddles_limb(&ts, &ss) {
+            let (face_t, face_s) = self.face_on_px(&cell);
+            along_t = along_t.max(face_t);
+            along_s = along_s.max(face_s);
         }
         let big = along_t.max(along_s) > LEAF_CELL_PX;
         // Near the top levels the 3×3 samples may miss curvature: always
@@ -456,6 +498,7 @@ impl Frame<'_> {
             || self.body.relief.normals.is_some()
             || self.shadows.is_some()
             || self.body.relief.albedo_tiles.is_some();
+        let widened = self.lune.widened();
         let mut total = 0.0;
         let [upper, lower] = rows;
         self.corner_row(self.theta(cell.t0), cell.s0, ds, leaf.n_s, lower);
@@ -520,7 +563,15 @@ impl Frame<'_> {
                         )
                     }
                 };
-                let omega = self.weight.at(mu0_far, mu_far);
+                // Past the sphere's limb (or within a cap of it) the
+                // closed-form weight's centre value crosses zero: the cap
+                // takes its plain area there (only with relief, which
+                // widens the lune past the limb).
+                let (w_theta, w_phi, omega) = if widened && mu_far < self.lune.k_view + d_phi {
+                    (theta0.cos() - theta1.cos(), d_phi, 1.0)
+                } else {
+                    (w_theta, w_phi, self.weight.at(mu0_far, mu_far))
+                };
                 if !(omega > 0.0) {
                     continue;
                 }
@@ -731,8 +782,7 @@ impl Frame<'_> {
         if projected <= 0.0 {
             return 0.0;
         }
-        let hidden = self.camera_visible(n_body, cam);
-        if hidden == 0.0 {
+        if self.camera_visible(n_body, cam, r) == 0.0 {
             return 0.0;
         }
         let area_scale = (r / radius) * (r / radius);
@@ -742,18 +792,45 @@ impl Frame<'_> {
             * self.relief_shadow(n_local, n_body, r)
     }
 
-    /// 0 where nearer relief hides the point of body-fixed direction
-    /// `n_body` from the camera (`cam`: the point to the camera, Lester
-    /// coordinates), else 1. Only with both the horizon map and the
-    /// displacement: the flat sphere's points are hidden by nothing.
+    /// 0 where nearer relief hides the point `r` n_body (body-fixed
+    /// direction `n_body`) from the camera (`cam`: the point to the
+    /// camera, Lester coordinates), else 1. With a displacement, a point
+    /// seeing the camera below its local horizontal (past the sphere's
+    /// limb, or raised near it) marches its line of sight through the DEM
+    /// ([`super::sight`]); above it, where the frame applies the shadows,
+    /// the horizon map in the camera's azimuth clears it, and the march
+    /// confirms what the map hides. The flat sphere's points are hidden by
+    /// nothing.
     #[inline]
-    fn camera_visible(&self, n_body: DVec3, cam: DVec3) -> f64 {
-        let (Some(shadows), Some(_)) = (&self.shadows, self.height) else {
+    fn camera_visible(&self, n_body: DVec3, cam: DVec3, r: f64) -> f64 {
+        let Some(height) = self.height else {
             return 1.0;
         };
         let [xb, yb, zb] = self.axes_body;
         let v = (xb * cam.x + yb * cam.y + zb * cam.z).normalize();
-        shadows.camera_visible(n_body, v)
+        let march = || {
+            let relief = super::sight::Relief {
+                height: &height.0,
+                tiles: self.body.relief.height_tiles.as_deref(),
+                radius: self.radius,
+                bound: self.body.relief.height_bound,
+            };
+            if relief.clears(n_body * r, v) {
+                1.0
+            } else {
+                0.0
+            }
+        };
+        if v.dot(n_body) < 0.0 {
+            return march();
+        }
+        match &self.shadows {
+            // The interpolated horizon errs near its edge: a point it hides
+            // is confirmed by the march (hidden points add nothing, so the
+            // cost stays with them).
+            Some(shadows) if shadows.camera_visible(n_body, v) == 0.0 => march(),
+            _ => 1.0,
+        }
     }
 }
 

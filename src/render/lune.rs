@@ -34,6 +34,10 @@ pub struct Lune {
     pub k_view: f64,
     /// R / sun_range (0 in the distant-Sun limit).
     pub k_sun: f64,
+    /// Cosine of the largest angle from the camera's direction of a point
+    /// the frame treats as visible: `k_view` (the sphere's limb), lower
+    /// when relief can rise over the limb ([`Lune::widen_view`]).
+    pub view_cos: f64,
     /// Smallest colatitude with lit, visible points.
     pub theta_min: f64,
     /// Whether any point is both lit and visible.
@@ -72,6 +76,7 @@ impl Lune {
             sun_range,
             k_view,
             k_sun,
+            view_cos: k_view,
             theta_min: 0.0,
             empty: false,
         };
@@ -82,14 +87,18 @@ impl Lune {
     /// Half-widths (a_view, a_sun) of the visible and lit arcs at sinθ.
     #[inline]
     fn half_widths(&self, sin_theta: f64) -> (f64, f64) {
+        // Half-width of the arc n·d̂ > k of the row at sinθ (d̂ in the
+        // equator plane): 0 when none of it, π when all of it qualifies.
         let a = |k: f64| {
-            if k <= 0.0 {
+            if k == 0.0 {
                 std::f64::consts::FRAC_PI_2
             } else if sin_theta <= k {
                 0.0
+            } else if sin_theta <= -k {
+                std::f64::consts::PI
             } else {
                 let x = k / sin_theta;
-                if x < 1e-3 {
+                if x.abs() < 1e-3 {
                     // acos x = π/2 − x − x³/6 − 3x⁵/40 − …, next term < 1e-21.
                     let x2 = x * x;
                     std::f64::consts::FRAC_PI_2 - x * (1.0 + x2 * (1.0 / 6.0 + x2 * 3.0 / 40.0))
@@ -98,7 +107,7 @@ impl Lune {
                 }
             }
         };
-        (a(self.k_view), a(self.k_sun))
+        (a(self.view_cos), a(self.k_sun))
     }
 
     /// Longitude range [lo, hi] of the lit, visible points at sinθ (lo ≥ hi
@@ -107,6 +116,34 @@ impl Lune {
     pub fn phi_range(&self, sin_theta: f64) -> (f64, f64) {
         let (av, asun) = self.half_widths(sin_theta);
         ((self.alpha - av).max(-asun), (self.alpha + av).min(asun))
+    }
+
+    /// Widens the visible region for relief of at most `h` [m] over and
+    /// under the sphere of radius `radius` [m]: a point seeing the camera
+    /// over terrain nowhere lower than R − h, itself no higher than R + h,
+    /// lies within ψ = acos((R − h)/D) + acos((R − h)/(R + h)) of the
+    /// camera's direction (π/2 for the first term at infinite range).
+    /// Points past the sphere's limb (`k_view`) then need a line-of-sight
+    /// test (`render::sight`).
+    pub fn widen_view(&mut self, radius: f64, h: f64) {
+        if !(h > 0.0) || self.empty {
+            return;
+        }
+        let low = (radius - h).max(0.0);
+        let limb = if self.k_view > 0.0 {
+            (low / self.camera_range).min(1.0).acos()
+        } else {
+            std::f64::consts::FRAC_PI_2
+        };
+        let psi = (limb + (low / (radius + h)).acos()).min(std::f64::consts::PI);
+        self.view_cos = self.view_cos.min(psi.cos());
+        self.theta_min = 0.0;
+        self.find_theta_range();
+    }
+
+    /// Whether [`Lune::widen_view`] took the region past the sphere's limb.
+    pub fn widened(&self) -> bool {
+        self.view_cos < self.k_view
     }
 
     fn find_theta_range(&mut self) {
@@ -118,9 +155,9 @@ impl Lune {
             self.empty = true;
             return;
         }
-        let k = self.k_view.max(self.k_sun);
+        let k = self.view_cos.max(self.k_sun);
         if width(k.max(0.0)) > 0.0 {
-            self.theta_min = k.asin();
+            self.theta_min = k.max(0.0).asin();
             return;
         }
         // Bisection on sinθ for the row where the arcs start to overlap.
@@ -187,6 +224,37 @@ mod tests {
                 assert!(visible > -1e-9 && lit > -1e-6);
             }
         }
+    }
+
+    /// Widened for relief h, the view boundary is the circle n·ĉ =
+    /// cos ψ with ψ written out here, and the lit boundary is unchanged.
+    #[test]
+    fn widened_view_reaches_past_the_limb_by_the_reliefs_reach() {
+        let cam = DVec3::new(0.0, 4.0, 0.0);
+        let sun = DVec3::new(1e9, 0.0, 0.0);
+        let mut l = Lune::new(cam, sun, 1.0, false);
+        assert!(!l.widened());
+        l.widen_view(1.0, 0.04);
+        assert!(l.widened());
+        let psi = (0.96f64 / 4.0).acos() + (0.96f64 / 1.04).acos();
+        assert!((l.view_cos - psi.cos()).abs() < 1e-12);
+        let (mut on_view, mut on_lit) = (0, 0);
+        for theta in [0.5f64, 1.0, 1.3, 1.57, 2.2] {
+            let (lo, hi) = l.phi_range(theta.sin());
+            assert!(hi > lo);
+            for phi in [lo, hi] {
+                let n = l.normal(theta, phi);
+                let view = n.dot(cam.normalize()) - psi.cos();
+                let lit = n.dot(sun.normalize()) - 1e-9;
+                assert!(view > -1e-9 && lit > -1e-6, "θ {theta} φ {phi}");
+                on_view += (view.abs() < 1e-9) as usize;
+                on_lit += (lit.abs() < 1e-6) as usize;
+            }
+        }
+        assert!(on_view > 0 && on_lit > 0, "{on_view} {on_lit}");
+        let mut flat = Lune::new(cam, sun, 1.0, false);
+        flat.widen_view(1.0, 0.0);
+        assert!(!flat.widened() && flat.theta_min == Lune::new(cam, sun, 1.0, false).theta_min);
     }
 
     #[test]

@@ -23,6 +23,7 @@ pub mod output;
 mod polar_sun;
 pub mod relief;
 pub mod shadow_edges;
+pub mod sight;
 
 use std::time::Instant;
 
@@ -211,6 +212,12 @@ impl Renderer {
             // The DEM's displacement (`shadows.displace`) goes with it.
             relief::decide_displacement(s, &mut frame, &mut decision);
             stats.shadows = Some(decision);
+        }
+        // Terrain past the sphere's limb that the displacement can lift
+        // into view: its caps join the lune (`render::sight` hides them
+        // where nearer relief covers them).
+        if frame.height.is_some() && body.relief.far_limb {
+            frame.lune.widen_view(body.radius, body.relief.height_bound);
         }
 
         // Lay out the caps: recursive split with culling.

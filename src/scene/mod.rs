@@ -118,6 +118,9 @@ pub struct Relief {
     /// model's albedo): kept here, with the relief, so that a `Body` built
     /// elsewhere needs no new field.
     pub albedo_tiles: Option<std::sync::Arc<tiles::TileSet>>,
+    /// Whether the displacement's terrain past the sphere's limb can rise
+    /// into view (`shadows.far_limb`; `render::sight`).
+    pub far_limb: bool,
 }
 
 impl Body {
@@ -517,6 +520,9 @@ pub struct ShadowsSpec {
     /// its slopes tilt the normals.
     #[serde(default)]
     pub displace: bool,
+    /// With `displace`: terrain past the sphere's limb rises into view.
+    #[serde(default)]
+    pub far_limb: bool,
 }
 
 impl ShadowsSpec {
@@ -530,6 +536,7 @@ impl ShadowsSpec {
             cache_dir: None,
             mode,
             displace,
+            far_limb: false,
         }
     }
 }
@@ -552,12 +559,19 @@ impl Relief {
         base: &Path,
         radius: f64,
     ) -> Result<Relief> {
+        if spec.far_limb && !spec.displace {
+            return Err(Error::invalid(
+                "body.shadows.far_limb",
+                "needs `displace = true` (the far limb is the displacement's)",
+            ));
+        }
         let (shadows, dem, tiles) = relief_shadows(spec, dem_tiles, max_abs_height, base, radius)?;
         let mut relief = Relief {
             shadows: Some(std::sync::Arc::new(shadows)),
             ..Relief::default()
         };
         if spec.displace {
+            relief.far_limb = spec.far_limb;
             relief.set_height(dem);
             if let Some(set) = tiles {
                 relief.set_height_tiles(std::sync::Arc::new(set));

@@ -1,0 +1,255 @@
+//! Relief past the sphere's limb rising into view (`[body] shadows` with
+//! `displace = true, far_limb = true`): a ring ridge on the far side of the geometric limb,
+//! seen in profile, against the silhouette of the same DEM computed here
+//! over latitudes on both sides of the limb; the light it adds against the
+//! area of that silhouette; and no pixel lit twice where the sphere in
+//! front covers the ridge's lower slopes.
+
+mod common;
+use common::*;
+
+use glam::{DQuat, DVec3};
+use std::f64::consts::{FRAC_PI_2, PI};
+
+/// DEM rows (latitude) and columns of the ring ridge.
+const ROWS: usize = 720;
+const COLS: usize = 8;
+
+/// Latitude [rad] of DEM row centre j.
+fn row_lat(j: usize) -> f64 {
+    FRAC_PI_2 - (j as f64 + 0.5) * PI / ROWS as f64
+}
+
+/// The DEM's height at latitude `lat`: linear between row centres, held
+/// beyond the first and last (a bilinear read of a DEM constant in
+/// longitude).
+fn dem_height(rows: &[f64], lat: f64) -> f64 {
+    let y = ((FRAC_PI_2 - lat) / PI * ROWS as f64 - 0.5).clamp(0.0, (ROWS - 1) as f64);
+    let j = (y.floor() as usize).min(ROWS - 2);
+    let t = y - j as f64;
+    rows[j] * (1.0 - t) + rows[j + 1] * t
+}
+
+/// Angle [rad] off the line of sight of the silhouette of the body of
+/// radius `radius` raised by `rows`, seen from distance `d` over its north
+/// pole: the largest atan(ρ / (d − z)) over latitudes −0.3 … 0.6 rad (both
+/// sides of the sphere's limb and of the equator), and where it is reached.
+fn silhouette(rows: &[f64], radius: f64, d: f64) -> (f64, f64) {
+    let (mut best, mut at) = (0.0f64, 0.0);
+    for k in 0..=300_000 {
+        let lat = -0.3 + (k as f64 / 300_000.0) * 0.9;
+        let r = radius + dem_height(rows, lat);
+        let a = (r * lat.cos()).atan2(d - r * lat.sin());
+        if a > best {
+            (best, at) = (a, lat);
+        }
+    }
+    (best, at)
+}
+
+/// Distance [px] from the principal point to the end of the lit disk along
+/// row `row`, toward `sign` (±1): pixels past the outermost one at least
+/// 98 % of `full` count their share of `full` (an area-law body is
+/// uniformly bright, so a pixel's radiance is its covered share).
+fn edge_px(radiance: &[f32], width: usize, row: usize, cx: f64, sign: i64, full: f64) -> f64 {
+    let col = |k: i64| (cx.floor() as i64 + sign * k) as usize;
+    let share = |k: i64| (radiance[row * width + col(k)] as f64 / full).min(1.0);
+    let last = (0..(width as i64 / 2 - 1))
+        .filter(|&k| share(k) >= 0.98)
+        .max()
+        .unwrap();
+    let partial: f64 = (last + 1..(width as i64 / 2 - 1)).map(share).sum();
+    let far_edge_of_last = if sign > 0 {
+        (cx.floor() + last as f64 + 1.0) - cx
+    } else {
+        cx - (cx.floor() - last as f64)
+    };
+    far_edge_of_last + partial
+}
+
+/// One render's measures: the limb's distance [px] from the centre on
+/// both sides of the central row, the image's sum over the centre's
+/// radiance [px²], and the largest pixel over the centre's.
+struct Measured {
+    edges: [f64; 2],
+    area_px: f64,
+    brightest: f64,
+}
+
+fn measure(scene: &optistim::scene::Scene) -> Measured {
+    let images = render(scene);
+    let pin = &scene.camera.pinhole;
+    let row = pin.cy.floor() as usize;
+    let img = &images.radiance;
+    // The central pixel lies wholly inside the flat polar cap.
+    let full = img[row * pin.width + pin.cx.floor() as usize] as f64;
+    assert!(full > 0.0);
+    let edges = [1, -1].map(|sign| edge_px(img, pin.width, row, pin.cx, sign, full));
+    let area_px = img.iter().map(|&v| v as f64).sum::<f64>() / full;
+    let brightest = img.iter().map(|&v| v as f64).fold(0.0, f64::max) / full;
+    Measured {
+        edges,
+        area_px,
+        brightest,
+    }
+}
+
+/// A ring ridge 40 m high (σ = 3°, 12 DEM rows) whose crest lies 6°
+/// past the sphere's limb (latitude asin(R/d) − 6°), with a ridge 15 m
+/// high (σ = 2°) just inside the limb and one 30 m high 15° past it that
+/// stays behind the limb, on a
+/// 1000 m area-law body seen from 4 radii over its north pole, 200 px
+/// across, the Sun 5° off the camera (every visible point is lit; caps
+/// everywhere, as with a displacement): on both sides of the
+/// central row the lit disk ends where the silhouette computed here says,
+/// within 0.05 px; the light the ridge adds is its silhouette's annulus
+/// (π (r_ridge² − r_sphere²) in pixels) within 0.5 %, and no pixel holds
+/// two surfaces' radiance (the deep ridge's slope facing the camera stays
+/// hidden behind the limb); a flat DEM leaves every pixel as the sphere's
+/// within 1e-9.
+#[test]
+fn a_ridge_past_the_limb_rises_into_the_profile() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut setup = Setup::new("{ model = \"area\", albedo = 0.3 }", 5.0, 4.0, 200.0);
+    let (radius, d) = (setup.radius, setup.range);
+    let limb_lat = (radius / d).asin();
+    // (height, crest, σ): the far ridge past the limb, a ridge on the
+    // limb, and a deep ridge whose camera-facing slope (up to 46°, steeper
+    // than the camera's depression there) faces the camera from behind
+    // the limb, too low to clear it (it would need R (sec 15° − 1) = 35 m).
+    let ridges = [
+        (40.0, limb_lat - 6f64.to_radians(), 3f64.to_radians()),
+        (15.0, limb_lat + 0.5f64.to_radians(), 2f64.to_radians()),
+        (30.0, limb_lat - 15f64.to_radians(), 1f64.to_radians()),
+    ];
+    let rows: Vec<f64> = (0..ROWS)
+        .map(|j| {
+            ridges
+                .iter()
+                .map(|&(h, crest, sigma)| h * (-0.5 * ((row_lat(j) - crest) / sigma).powi(2)).exp())
+                .sum()
+        })
+        .collect();
+    let write = |name: &str, rows: &[f64]| {
+        let data: Vec<f32> = rows
+            .iter()
+            .flat_map(|&v| std::iter::repeat_n(v as f32, COLS))
+            .collect();
+        let path = dir.path().join(name);
+        optistim::render::output::write_f32_tiff(&path, COLS, ROWS, &data).unwrap();
+        path
+    };
+    let ridge_dem = write("ridge.tiff", &rows);
+    let flat_dem = write("flat.tiff", &vec![0.0; ROWS]);
+
+    // The body's north pole toward the camera.
+    let cam = setup.camera_position();
+    let q = DQuat::from_rotation_arc(DVec3::Z, cam.normalize());
+    let body_attitude = format!(
+        "[state]\nbody_attitude = [{:e}, {:e}, {:e}, {:e}]",
+        q.w, q.x, q.y, q.z
+    );
+    let scene_of = |setup: &Setup| {
+        let toml = setup.toml().replacen("[state]", &body_attitude, 1);
+        optistim::scene::Scene::from_toml(&toml, std::path::Path::new("t.toml")).unwrap()
+    };
+    // Caps everywhere, as the displacement renders.
+    setup.extra_render = "interior = \"caps\"".into();
+    let plain = scene_of(&setup);
+    let with_dem = |setup: &mut Setup, dem: &std::path::Path| {
+        setup.extra_body = format!(
+            "shadows = {{ dem = \"{}\", scale = 1.0, mode = \"always\", displace = true, far_limb = true, cache_dir = \"{}\" }}",
+            dem.display(),
+            dir.path().display()
+        );
+        scene_of(setup)
+    };
+    let raised = with_dem(&mut setup, &ridge_dem);
+    let flat = with_dem(&mut setup, &flat_dem);
+
+    // The geometry, computed here: the ridge's silhouette point lies past
+    // the sphere's limb and moves the limb outward by pixels.
+    let pin = &plain.camera.pinhole;
+    let (sphere_angle, _) = silhouette(&vec![0.0; ROWS], radius, d);
+    assert!((sphere_angle - (radius / d).asin()).abs() < 1e-9);
+    let (ridge_angle, at) = silhouette(&rows, radius, d);
+    assert!(at < limb_lat - 2f64.to_radians(), "{at} vs limb {limb_lat}");
+    let sphere_px = pin.fx * sphere_angle.tan();
+    let ridge_px = pin.fx * ridge_angle.tan();
+    assert!(ridge_px - sphere_px > 2.0, "{ridge_px} vs {sphere_px}");
+
+    let sphere = measure(&plain);
+    let ridge = measure(&raised);
+    eprintln!(
+        "limb: sphere {:?} px (geometry {sphere_px}), ridge {:?} px (geometry {ridge_px})",
+        sphere.edges, ridge.edges
+    );
+    // The light the ridge adds: the annulus between the two silhouettes
+    // (uniform radiance, every visible point lit).
+    let added = ridge.area_px - sphere.area_px;
+    let annulus = PI * (ridge_px * ridge_px - sphere_px * sphere_px);
+    eprintln!(
+        "disk {:.3} px² (π r² {:.3}); ridge adds {added:.3} px² (annulus {annulus:.3}); brightest {:.5} / {:.5} of the centre",
+        sphere.area_px,
+        PI * sphere_px * sphere_px,
+        ridge.brightest,
+        sphere.brightest
+    );
+    for (got, want, what) in [
+        (sphere.edges, sphere_px, "sphere"),
+        (ridge.edges, ridge_px, "ridge"),
+    ] {
+        for e in got {
+            assert!(
+                (e - want).abs() < 0.05,
+                "{what}: limb at {e} px, geometry {want}"
+            );
+        }
+    }
+    assert!(
+        (added / annulus - 1.0).abs() < 5e-3,
+        "the ridge adds {added} px², its silhouette's annulus is {annulus} px²"
+    );
+    // Grazing facets shade with the DEM's slope maps while their corners
+    // sit on its bilinear surface: single pixels swing by a few per cent
+    // either way (the sum above holds to 0.5 %); terrain lit twice would
+    // double a pixel.
+    assert!(
+        ridge.brightest < 1.05,
+        "a pixel at {} of one surface's radiance: hidden slopes add light",
+        ridge.brightest
+    );
+
+    // A flat DEM: the sphere's image, pixel by pixel.
+    let (a, b) = (render(&plain).radiance, render(&flat).radiance);
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(&x, &y)| (x as f64 - y as f64).abs() / (x as f64).abs().max(1e-300))
+        .fold(0.0, f64::max);
+    assert!(worst <= 1e-9, "a flat DEM changed a pixel by {worst:e}");
+}
+
+/// `far_limb` without `displace` is refused with a one-line error naming
+/// the key.
+#[test]
+fn far_limb_needs_the_displacement() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem = dir.path().join("flat.tiff");
+    optistim::render::output::write_f32_tiff(&dem, COLS, ROWS, &vec![0.0f32; COLS * ROWS]).unwrap();
+    let mut setup = Setup::new("{ model = \"area\", albedo = 0.3 }", 5.0, 4.0, 50.0);
+    setup.extra_body = format!(
+        "shadows = {{ dem = \"{}\", scale = 1.0, far_limb = true, cache_dir = \"{}\" }}",
+        dem.display(),
+        dir.path().display()
+    );
+    let Err(err) = optistim::scene::Scene::from_toml(&setup.toml(), std::path::Path::new("t.toml"))
+    else {
+        panic!("far_limb without displace was accepted");
+    };
+    let msg = err.to_string();
+    assert!(
+        msg.contains("body.shadows.far_limb") && !msg.contains('\n'),
+        "{msg}"
+    );
+}
