@@ -259,6 +259,12 @@ body_attitude = [0.5, 0.5, 0.5, -0.5]
 camera_position = [0.0, 0.0, -8.2963e7]
 camera_attitude = [1.0, 0.0, 0.0, 0.0]
 sun_position = [7.48e10, 0.0, -1.29557e11]
+
+[render]
+caps_per_pixel = 1.5
+node_spacing = 4
+pixel_tolerance = 1.0e-3
+shadow_edges = false
 "#;
 
 /// Two states of an epoch trajectory.
