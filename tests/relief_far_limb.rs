@@ -6,66 +6,11 @@
 //! front covers the ridge's lower slopes.
 
 mod common;
+use common::ring_dem::*;
 use common::*;
 
 use glam::{DQuat, DVec3};
-use std::f64::consts::{FRAC_PI_2, PI};
-
-/// DEM rows (latitude) and columns of the ring ridge.
-const ROWS: usize = 720;
-const COLS: usize = 8;
-
-/// Latitude [rad] of DEM row centre j.
-fn row_lat(j: usize) -> f64 {
-    FRAC_PI_2 - (j as f64 + 0.5) * PI / ROWS as f64
-}
-
-/// The DEM's height at latitude `lat`: linear between row centres, held
-/// beyond the first and last (a bilinear read of a DEM constant in
-/// longitude).
-fn dem_height(rows: &[f64], lat: f64) -> f64 {
-    let y = ((FRAC_PI_2 - lat) / PI * ROWS as f64 - 0.5).clamp(0.0, (ROWS - 1) as f64);
-    let j = (y.floor() as usize).min(ROWS - 2);
-    let t = y - j as f64;
-    rows[j] * (1.0 - t) + rows[j + 1] * t
-}
-
-/// Angle [rad] off the line of sight of the silhouette of the body of
-/// radius `radius` raised by `rows`, seen from distance `d` over its north
-/// pole: the largest atan(ρ / (d − z)) over latitudes −0.3 … 0.6 rad (both
-/// sides of the sphere's limb and of the equator), and where it is reached.
-fn silhouette(rows: &[f64], radius: f64, d: f64) -> (f64, f64) {
-    let (mut best, mut at) = (0.0f64, 0.0);
-    for k in 0..=300_000 {
-        let lat = -0.3 + (k as f64 / 300_000.0) * 0.9;
-        let r = radius + dem_height(rows, lat);
-        let a = (r * lat.cos()).atan2(d - r * lat.sin());
-        if a > best {
-            (best, at) = (a, lat);
-        }
-    }
-    (best, at)
-}
-
-/// Distance [px] from the principal point to the end of the lit disk along
-/// row `row`, toward `sign` (±1): pixels past the outermost one at least
-/// 98 % of `full` count their share of `full` (an area-law body is
-/// uniformly bright, so a pixel's radiance is its covered share).
-fn edge_px(radiance: &[f32], width: usize, row: usize, cx: f64, sign: i64, full: f64) -> f64 {
-    let col = |k: i64| (cx.floor() as i64 + sign * k) as usize;
-    let share = |k: i64| (radiance[row * width + col(k)] as f64 / full).min(1.0);
-    let last = (0..(width as i64 / 2 - 1))
-        .filter(|&k| share(k) >= 0.98)
-        .max()
-        .unwrap();
-    let partial: f64 = (last + 1..(width as i64 / 2 - 1)).map(share).sum();
-    let far_edge_of_last = if sign > 0 {
-        (cx.floor() + last as f64 + 1.0) - cx
-    } else {
-        cx - (cx.floor() - last as f64)
-    };
-    far_edge_of_last + partial
-}
+use std::f64::consts::PI;
 
 /// One render's measures: the limb's distance [px] from the centre on
 /// both sides of the central row, the image's sum over the centre's
@@ -170,9 +115,9 @@ fn a_ridge_past_the_limb_rises_into_the_profile() {
     // The geometry, computed here: the ridge's silhouette point lies past
     // the sphere's limb and moves the limb outward by pixels.
     let pin = &plain.camera.pinhole;
-    let (sphere_angle, _) = silhouette(&vec![0.0; ROWS], radius, d);
+    let (sphere_angle, _) = silhouette(&vec![0.0; ROWS], radius, d, (-0.3, 0.6), 300_000);
     assert!((sphere_angle - (radius / d).asin()).abs() < 1e-9);
-    let (ridge_angle, at) = silhouette(&rows, radius, d);
+    let (ridge_angle, at) = silhouette(&rows, radius, d, (-0.3, 0.6), 300_000);
     assert!(at < limb_lat - 2f64.to_radians(), "{at} vs limb {limb_lat}");
     let sphere_px = pin.fx * sphere_angle.tan();
     let ridge_px = pin.fx * ridge_angle.tan();

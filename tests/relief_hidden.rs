@@ -4,29 +4,10 @@
 //! lit terrain behind, carry one surface's radiance, not both.
 
 mod common;
+use common::ring_dem::*;
 use common::*;
 
 use glam::{DQuat, DVec3};
-use std::f64::consts::{FRAC_PI_2, PI};
-
-/// DEM rows (latitude) and columns of the ring ridge.
-const ROWS: usize = 720;
-const COLS: usize = 8;
-
-/// Latitude [rad] of DEM row centre j.
-fn row_lat(j: usize) -> f64 {
-    FRAC_PI_2 - (j as f64 + 0.5) * PI / ROWS as f64
-}
-
-/// The DEM's height at latitude `lat`: linear between row centres, held
-/// beyond the first and last (a bilinear read of a DEM constant in
-/// longitude).
-fn dem_height(rows: &[f64], lat: f64) -> f64 {
-    let y = ((FRAC_PI_2 - lat) / PI * ROWS as f64 - 0.5).clamp(0.0, (ROWS - 1) as f64);
-    let j = (y.floor() as usize).min(ROWS - 2);
-    let t = y - j as f64;
-    rows[j] * (1.0 - t) + rows[j + 1] * t
-}
 
 /// Whether body-frame point `p` is inside the relief over the sphere of
 /// `radius`.

@@ -4,75 +4,12 @@
 //! differences of the DEM's bilinear surface written here.
 
 mod common;
+use common::ring_dem::*;
 use common::*;
 
 use glam::{DQuat, DVec3};
 use optistim::scene::surface::displaced;
 use optistim::scene::EquirectMap;
-
-/// DEM rows (latitude) and columns of the ring ridge.
-const ROWS: usize = 720;
-const COLS: usize = 8;
-
-/// Ridge height profile of latitude: a Gaussian ring of height `h` [m]
-/// and width `sigma` [rad] around latitude `crest` [rad].
-fn ridge(lat: f64, h: f64, crest: f64, sigma: f64) -> f64 {
-    h * (-0.5 * ((lat - crest) / sigma).powi(2)).exp()
-}
-
-/// Latitude [rad] of DEM row centre j.
-fn row_lat(j: usize) -> f64 {
-    std::f64::consts::FRAC_PI_2 - (j as f64 + 0.5) * std::f64::consts::PI / ROWS as f64
-}
-
-/// The DEM's height at latitude `lat`: linear between row centres, held
-/// beyond the first and last (what a bilinear read of a DEM constant in
-/// longitude gives).
-fn dem_height(rows: &[f64], lat: f64) -> f64 {
-    let y = (std::f64::consts::FRAC_PI_2 - lat) / std::f64::consts::PI * ROWS as f64 - 0.5;
-    let y = y.clamp(0.0, (ROWS - 1) as f64);
-    let j = (y.floor() as usize).min(ROWS - 2);
-    let t = y - j as f64;
-    rows[j] * (1.0 - t) + rows[j + 1] * t
-}
-
-/// Angle [rad] off the line of sight of the silhouette of the body of
-/// radius `radius` raised by `rows`, seen from distance `d` over its north
-/// pole: the largest atan(ρ / (d − z)) over a fine latitude grid, and the
-/// latitude where it is reached.
-fn silhouette(rows: &[f64], radius: f64, d: f64) -> (f64, f64) {
-    let (mut best, mut at) = (0.0f64, 0.0);
-    for k in 0..=200_000 {
-        let lat = (k as f64 / 200_000.0) * 0.6;
-        let r = radius + dem_height(rows, lat);
-        let a = (r * lat.cos()).atan2(d - r * lat.sin());
-        if a > best {
-            (best, at) = (a, lat);
-        }
-    }
-    (best, at)
-}
-
-/// Distance [px] from the principal point to the end of the lit disk along
-/// the central row, toward `sign` (±1): pixels past the outermost one at
-/// least 98 % of `full` count their share of `full` (an area-law body is
-/// uniformly bright, so a pixel's radiance is its covered share).
-fn edge_px(radiance: &[f32], width: usize, row: usize, cx: f64, sign: i64, full: f64) -> f64 {
-    let col = |k: i64| (cx.floor() as i64 + sign * k) as usize;
-    let share = |k: i64| (radiance[row * width + col(k)] as f64 / full).min(1.0);
-    let last = (0..(width as i64 / 2 - 1))
-        .filter(|&k| share(k) >= 0.98)
-        .max()
-        .unwrap();
-    let partial: f64 = (last + 1..(width as i64 / 2 - 1)).map(share).sum();
-    // The central pixel's far edge is |cx − floor cx ± ...| from cx.
-    let far_edge_of_last = if sign > 0 {
-        (cx.floor() + last as f64 + 1.0) - cx
-    } else {
-        cx - (cx.floor() - last as f64)
-    };
-    far_edge_of_last + partial
-}
 
 /// A ring ridge 40 m high (σ = 3°, 12 DEM rows)
 /// whose crest is the sphere's limb, on a 1000 m body seen from 4 radii
@@ -139,10 +76,10 @@ fn a_ridge_on_the_limb_moves_the_silhouette_by_its_projected_height() {
         edge_px(&img, pin.width, row, pin.cx, sign, full)
     };
 
-    let (sphere_angle, _) = silhouette(&vec![0.0; ROWS], radius, d);
+    let (sphere_angle, _) = silhouette(&vec![0.0; ROWS], radius, d, (0.0, 0.6), 200_000);
     assert!((sphere_angle - (radius / d).asin()).abs() < 1e-9);
     let sphere_px = pin.fx * sphere_angle.tan();
-    let (ridge_angle, at) = silhouette(&rows, radius, d);
+    let (ridge_angle, at) = silhouette(&rows, radius, d, (0.0, 0.6), 200_000);
     let ridge_px = pin.fx * ridge_angle.tan();
     // The silhouette point is on the near side (the renderer's caps cover
     // the sphere's visible hemisphere) and the ridge moves it by pixels.
