@@ -9,7 +9,6 @@ mod common;
 use common::ring_dem::*;
 use common::*;
 
-use glam::{DQuat, DVec3};
 use std::f64::consts::PI;
 
 /// One render's measures: the limb's distance [px] from the centre on
@@ -76,12 +75,8 @@ fn a_ridge_past_the_limb_rises_into_the_profile() {
         })
         .collect();
     let write = |name: &str, rows: &[f64]| {
-        let data: Vec<f32> = rows
-            .iter()
-            .flat_map(|&v| std::iter::repeat_n(v as f32, COLS))
-            .collect();
         let path = dir.path().join(name);
-        optistim::render::output::write_f32_tiff(&path, COLS, ROWS, &data).unwrap();
+        write_ring_dem(&path, rows);
         path
     };
     let ridge_dem = write("ridge.tiff", &rows);
@@ -89,11 +84,7 @@ fn a_ridge_past_the_limb_rises_into_the_profile() {
 
     // The body's north pole toward the camera.
     let cam = setup.camera_position();
-    let q = DQuat::from_rotation_arc(DVec3::Z, cam.normalize());
-    let body_attitude = format!(
-        "[state]\nbody_attitude = [{:e}, {:e}, {:e}, {:e}]",
-        q.w, q.x, q.y, q.z
-    );
+    let body_attitude = pole_toward(cam);
     let scene_of = |setup: &Setup| {
         let toml = setup.toml().replacen("[state]", &body_attitude, 1);
         optistim::scene::Scene::from_toml(&toml, std::path::Path::new("t.toml")).unwrap()

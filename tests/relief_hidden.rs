@@ -54,21 +54,13 @@ fn terrain_behind_a_ridge_adds_no_light() {
     let (radius, range) = (setup.radius, setup.range);
     let (h, crest, sigma) = (100.0, 45f64.to_radians(), 1.5f64.to_radians());
     let rows: Vec<f64> = (0..ROWS)
-        .map(|j| h * (-0.5 * ((row_lat(j) - crest) / sigma).powi(2)).exp())
-        .collect();
-    let data: Vec<f32> = rows
-        .iter()
-        .flat_map(|&v| std::iter::repeat_n(v as f32, COLS))
+        .map(|j| ridge(row_lat(j), h, crest, sigma))
         .collect();
     let dem = dir.path().join("ring.tiff");
-    optistim::render::output::write_f32_tiff(&dem, COLS, ROWS, &data).unwrap();
+    write_ring_dem(&dem, &rows);
 
     let cam = setup.camera_position();
-    let q = DQuat::from_rotation_arc(DVec3::Z, cam.normalize());
-    let body_attitude = format!(
-        "[state]\nbody_attitude = [{:e}, {:e}, {:e}, {:e}]",
-        q.w, q.x, q.y, q.z
-    );
+    let body_attitude = pole_toward(cam);
     setup.extra_body = format!(
         "shadows = {{ dem = \"{}\", scale = 1.0, mode = \"always\", displace = true, cache_dir = \"{}\" }}",
         dem.display(),
@@ -87,7 +79,8 @@ fn terrain_behind_a_ridge_adds_no_light() {
     let z = -cam.normalize();
     let x_cam = z.cross(DVec3::Z).normalize();
     let y_cam = z.cross(x_cam);
-    let to_body = q.inverse();
+    // The same rotation as pole_toward's.
+    let to_body = DQuat::from_rotation_arc(DVec3::Z, cam.normalize()).inverse();
     let sun = to_body * setup.sun_position().normalize();
     let origin = to_body * cam;
     let sign: i64 = if x_cam.dot(setup.sun_position()) > 0.0 {

@@ -7,7 +7,7 @@ mod common;
 use common::ring_dem::*;
 use common::*;
 
-use glam::{DQuat, DVec3};
+use glam::DVec3;
 use optistim::scene::surface::displaced;
 use optistim::scene::EquirectMap;
 
@@ -26,20 +26,12 @@ fn a_ridge_on_the_limb_moves_the_silhouette_by_its_projected_height() {
     let rows: Vec<f64> = (0..ROWS)
         .map(|j| ridge(row_lat(j), h, limb_lat, sigma))
         .collect();
-    let data: Vec<f32> = rows
-        .iter()
-        .flat_map(|&v| std::iter::repeat_n(v as f32, COLS))
-        .collect();
     let dem = dir.path().join("ridge.tiff");
-    optistim::render::output::write_f32_tiff(&dem, COLS, ROWS, &data).unwrap();
+    write_ring_dem(&dem, &rows);
 
     // The body's north pole toward the camera.
     let cam = setup.camera_position();
-    let q = DQuat::from_rotation_arc(DVec3::Z, cam.normalize());
-    let body_attitude = format!(
-        "[state]\nbody_attitude = [{:e}, {:e}, {:e}, {:e}]",
-        q.w, q.x, q.y, q.z
-    );
+    let body_attitude = pole_toward(cam);
     let scene_of = |setup: &Setup| {
         let toml = setup.toml().replacen("[state]", &body_attitude, 1);
         optistim::scene::Scene::from_toml(&toml, std::path::Path::new("t.toml")).unwrap()

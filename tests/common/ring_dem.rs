@@ -66,3 +66,23 @@ pub fn edge_px(radiance: &[f32], width: usize, row: usize, cx: f64, sign: i64, f
     };
     far_edge_of_last + partial
 }
+
+/// Writes the DEM of `rows` (one height [m] per latitude row, constant in
+/// longitude over [`COLS`] columns) to `path` as a float TIFF.
+pub fn write_ring_dem(path: &std::path::Path, rows: &[f64]) {
+    let data: Vec<f32> = rows
+        .iter()
+        .flat_map(|&v| std::iter::repeat_n(v as f32, COLS))
+        .collect();
+    optistim::render::output::write_f32_tiff(path, COLS, ROWS, &data).unwrap();
+}
+
+/// A scene's `[state]` header with the body attitude that turns its north
+/// pole toward the camera at `camera` (body-centred, world frame).
+pub fn pole_toward(camera: glam::DVec3) -> String {
+    let q = glam::DQuat::from_rotation_arc(glam::DVec3::Z, camera.normalize());
+    format!(
+        "[state]\nbody_attitude = [{:e}, {:e}, {:e}, {:e}]",
+        q.w, q.x, q.y, q.z
+    )
+}
