@@ -30,7 +30,7 @@ enum Command {
         #[arg(long, default_value = "out")]
         out: PathBuf,
         /// Override the caps per pixel of the scene file.
-        #[arg(long)]
+        #[arg(long, value_parser = caps_per_pixel_flag)]
         caps_per_pixel: Option<f64>,
         /// Per-pixel error target (interior p99 against a converged
         /// render, in (0, 1]; replaces `[render] max_pixel_error`): render
@@ -171,12 +171,23 @@ enum ValidateCommand {
         psf_sigma: Option<f64>,
         /// Surface caps per pixel of the render (default: the renderer's;
         /// a displaced DEM needs about 4 to converge, BENCHMARKS.md).
-        #[arg(long)]
+        #[arg(long, value_parser = caps_per_pixel_flag)]
         caps_per_pixel: Option<f64>,
         /// Replace an earlier validation in `--out`.
         #[arg(long)]
         overwrite: bool,
     },
+}
+
+/// `--caps-per-pixel`, range-checked so its error names the flag.
+fn caps_per_pixel_flag(text: &str) -> Result<f64, String> {
+    use optistim::render_settings::{density_in_range, MAX_DENSITY};
+    let d: f64 = text.parse().map_err(|e| format!("{e}"))?;
+    if density_in_range(d) {
+        Ok(d)
+    } else {
+        Err(format!("must be in (0, {MAX_DENSITY}]"))
+    }
 }
 
 fn main() -> ExitCode {

@@ -92,6 +92,13 @@ pub const DEFAULT_MAP_TOLERANCE: f64 = 0.05;
 
 /// Default caps per pixel along each axis.
 pub const DEFAULT_DENSITY: f64 = 1.0;
+/// Largest caps per pixel accepted (64² caps per pixel already converge).
+pub const MAX_DENSITY: f64 = 64.0;
+
+/// Whether `d` is an accepted caps-per-pixel value: finite, in (0, [`MAX_DENSITY`]].
+pub fn density_in_range(d: f64) -> bool {
+    d.is_finite() && d > 0.0 && d <= MAX_DENSITY
+}
 
 impl Default for RenderSettings {
     fn default() -> Self {
@@ -117,10 +124,10 @@ impl RenderSettings {
     /// Reject out-of-range values, naming the key.
     pub fn check(&self) -> Result<()> {
         if let Some(d) = self.caps_per_pixel {
-            if !(d.is_finite() && d > 0.0 && d <= 64.0) {
+            if !density_in_range(d) {
                 return Err(Error::invalid(
                     "render.caps_per_pixel",
-                    "must be in (0, 64]",
+                    format!("must be in (0, {MAX_DENSITY}], got {d}"),
                 ));
             }
         }

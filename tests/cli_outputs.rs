@@ -232,3 +232,34 @@ fn validate_refuses_an_earlier_result_unless_overwriting() {
         b"earlier"
     );
 }
+
+/// A bad `--caps-per-pixel` is a one-line error naming the flag (not the
+/// scene key it overrides), before anything is rendered or validated.
+#[test]
+fn caps_per_pixel_flag_errors_name_the_flag() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("out");
+    let out_arg = out_dir.to_str().unwrap();
+    for bad in ["nan", "0", "-1", "65", "1e9", "inf", "four"] {
+        for cmd in [
+            vec!["render", "configs/moon.toml", "--out", out_arg],
+            vec![
+                "validate",
+                "amie",
+                "data/amie/missing.img",
+                "--out",
+                out_arg,
+            ],
+        ] {
+            let flag = format!("--caps-per-pixel={bad}");
+            let mut args = cmd.clone();
+            args.push(&flag);
+            let out = optistim(&args, &[]);
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(!out.status.success(), "{args:?} succeeded");
+            assert!(err.contains("--caps-per-pixel"), "{args:?}: {err}");
+            assert!(!err.contains("render.caps_per_pixel"), "{args:?}: {err}");
+        }
+    }
+    assert!(!out_dir.exists(), "nothing is written for a bad flag");
+}
