@@ -239,6 +239,61 @@ fn the_observers_velocity_moves_a_star_by_the_aberration_angle() {
     assert!((moving.1 - still.1).abs() < 1e-3);
 }
 
+/// A star with a parallax seen by a narrow-angle camera 1 AU from the
+/// Sun: it lands where the star's position at 1 AU / p, seen from the
+/// camera, projects (computed here), 2 px from where it lands without it.
+#[test]
+fn a_nearby_star_moves_by_its_parallax() {
+    const AU: f64 = 1.495_978_707e11;
+    let dir = tempfile::tempdir().unwrap();
+    let (f_px, parallax_mas) = (1e6, 500.0);
+    let shot = sky_shot(radec(30.0, 20.0), 0.0, 64, f_px, "");
+    let write = |parallax: Option<f64>| {
+        let (head, cell) = match parallax {
+            Some(p) => (",parallax_mas", format!(",{p}")),
+            None => ("", String::new()),
+        };
+        let path = dir.path().join("near.csv");
+        std::fs::write(
+            &path,
+            format!("ra_deg,dec_deg,pm_ra_mas_per_yr,pm_dec_mas_per_yr,v_mag,b_v{head}\n30,20,0,0,4,0.6{cell}\n"),
+        )
+        .unwrap();
+        format!("[stars]\ncatalogue = \"{}\"\n", path.display())
+    };
+    let centroid = |stars: String| {
+        let mut s = sky_shot(radec(30.0, 20.0), 0.0, 64, f_px, &stars);
+        s.q = shot.q;
+        let e = render(&s.scene(dir.path())).electrons;
+        let (mut sum, mut su, mut sv) = (0.0, 0.0, 0.0);
+        for (k, &x) in e.iter().enumerate() {
+            let x = x as f64;
+            sum += x;
+            su += x * ((k % 64) as f64 + 0.5);
+            sv += x * ((k / 64) as f64 + 0.5);
+        }
+        (su / sum, sv / sum)
+    };
+    let far = centroid(write(None));
+    let near = centroid(write(Some(parallax_mas)));
+    // The star at distance AU / p [rad]; the camera at the origin, the Sun
+    // at `shot.sun`: the star's position relative to the camera.
+    let distance = AU / (parallax_mas / 3.6e6).to_radians();
+    let seen = (radec(30.0, 20.0) * distance + shot.sun).normalize();
+    let c = shot.q.inverse() * seen;
+    let want = (f_px * c.x / c.z + 32.0, f_px * c.y / c.z + 32.0);
+    let shift = (near.0 - far.0).hypot(near.1 - far.1);
+    println!(
+        "parallax: {shift:.4} px; at ({:.4}, {:.4}), expected ({:.4}, {:.4})",
+        near.0, near.1, want.0, want.1
+    );
+    assert!(shift > 1.5, "{shift} px: the parallax was not applied");
+    assert!(
+        (near.0 - want.0).abs() < 2e-3 && (near.1 - want.1).abs() < 2e-3,
+        "{near:?} vs {want:?}"
+    );
+}
+
 /// The bundled catalogue as read here (not by the library): HIP, RA, Dec
 /// [deg] moved by linear proper motion to `year`, V.
 fn bundled_at(year: f64) -> Vec<(i64, f64, f64, f64)> {

@@ -208,6 +208,8 @@ pub fn project(field: &StarField, scene: &Scene, margin: f64) -> Vec<ProjectedSt
     let s = &scene.state;
     let to_camera = s.camera_attitude.inverse();
     let years = field.epoch_year - field.catalogue.epoch_year;
+    // Parallax: the camera's position from the Sun (heliocentric).
+    let observer = s.camera_position - s.sun_position;
     let pupil = cam.pupil_area();
     let (w, h) = (pin.width as f64, pin.height as f64);
     field
@@ -216,7 +218,7 @@ pub fn project(field: &StarField, scene: &Scene, margin: f64) -> Vec<ProjectedSt
         .par_iter()
         .filter(|star| star.v_mag <= field.mag_limit)
         .filter_map(|star| {
-            let world = star.direction_after(years);
+            let world = star.direction_from(years, observer);
             // Aberration moves the body's image as much: it decides where
             // a star lands, not whether the body hides it.
             let apparent = field.beta.map_or(world, |b| aberrate(world, b));
