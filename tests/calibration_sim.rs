@@ -269,6 +269,40 @@ fn f_per_level_from_measured_spectra_removes_the_scale_bias() {
         assert!((measured / truth - 1.0).abs() < 1e-3, "level {}", p.level);
         assert_eq!(p.spectra, 2);
     }
+    // The scale, recomputed here: each level's meter reading × F at its
+    // level, linear between the measured levels, fitted to the camera
+    // response over the levels above 10 % of the top's (and not the
+    // white's F for all, which differs by more than 0.1 %).
+    let f_at = |level: f64| {
+        let k = points
+            .iter()
+            .position(|p| p.level as f64 >= level)
+            .unwrap_or(points.len() - 1)
+            .max(1);
+        let (a, b) = (&points[k - 1], &points[k]);
+        let t = ((level - a.level as f64) / (b.level - a.level) as f64).clamp(0.0, 1.0);
+        a.factor + t * (b.factor - a.factor)
+    };
+    let top = report.levels.last().unwrap().camera_dn_per_s;
+    let fit = |f: &dyn Fn(f64) -> f64| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for l in report
+            .levels
+            .iter()
+            .filter(|l| l.camera_dn_per_s >= 0.1 * top)
+        {
+            num += l.camera_dn_per_s * f(l.level as f64) * l.meter.unwrap();
+            den += l.camera_dn_per_s * l.camera_dn_per_s;
+        }
+        num / den
+    };
+    let expect = fit(&f_at);
+    assert!(
+        (report.scale / expect - 1.0).abs() < 1e-9,
+        "{} vs {expect}",
+        report.scale
+    );
+    assert!((fit(&|_| white.factor) / expect - 1.0).abs() > 1e-3);
     // The effect is there to correct: F changes by more than 1 % over the levels.
     assert!(f_true(64) / f_true(255) < 0.99);
     let (rms0, max0, bias0) = lut_errors(&sim, &file_lut);
