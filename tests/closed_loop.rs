@@ -598,6 +598,55 @@ fn honest_campaigns_reproduce_the_render_over_ten_seeds() {
     }
 }
 
+/// The CLI path of F per level (seed 1): `[calibrate.spectroradiometer]
+/// kind = "sim"` measures the spectrum at the default seven levels, the
+/// report and the LUT header carry F per level, verify reads the meter
+/// with it and passes, and the run's disk lies within its claim.
+#[test]
+fn a_campaign_with_a_spectroradiometer_applies_f_per_level_through_the_cli() {
+    let c = Campaign::new(1);
+    let given = Given {
+        spectroradiometer: true,
+        ..c.honest()
+    };
+    let files = c.calibrate("spectro", &given);
+    let text = std::fs::read_to_string(c.path("cal_spectro/radiometric_report.json")).unwrap();
+    let report: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let points = report["mismatch_by_level"].as_array().unwrap();
+    let levels: Vec<u64> = points
+        .iter()
+        .map(|p| p["level"].as_u64().unwrap())
+        .collect();
+    assert_eq!(levels, [64, 96, 128, 159, 191, 223, 255]);
+    let f: Vec<f64> = points
+        .iter()
+        .map(|p| p["factor"].as_f64().unwrap())
+        .collect();
+    // The simulated panel's greys are bluer: F rises with level.
+    assert!(f.windows(2).all(|w| w[1] > w[0]), "{f:?}");
+    assert_eq!(report["mismatch_factor"].as_f64(), Some(f[6]));
+    let lut = std::fs::read_to_string(&files.lut).unwrap();
+    assert!(
+        lut.contains("F(level)") && lut.contains("255 0.79"),
+        "{lut}"
+    );
+    let (verified, v) = c.verify("spectro", &given, &files);
+    println!(
+        "F per level {f:?}; verify {verified}, mean meter error {}",
+        v["mean_meter_error_percent"]
+    );
+    assert!(verified);
+    let reference = reference_of(&c.path("moon.toml"));
+    let floor = c.black_level_electrons(&reference);
+    let cmp = compare(
+        &c.run_and_capture("spectro", c.facility(&given, &files)),
+        &reference.electrons,
+        floor,
+    );
+    println!("closed loop with F per level: {cmp:?}");
+    assert!(cmp.u_k2.unwrap() <= U_K2_QUOTED && cmp.passes(), "{cmp:?}");
+}
+
 /// A copy of the white spectrum with its wavelengths moved by `nm`.
 fn shifted_spectrum(c: &Campaign, nm: f64) -> PathBuf {
     let text = std::fs::read_to_string(c.honest().spectrum).unwrap();
