@@ -177,6 +177,7 @@ fn radiometric_once(
         spectral: Some(CameraSpectral::from_scene(&c.scene)),
         meter_response,
         screen_spectrum,
+        spectroradiometer: None,
         screen_power: None,
         source: "calibration_bench".into(),
     };

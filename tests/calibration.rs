@@ -232,6 +232,7 @@ fn calibrate(
         spectral: None,
         meter_response: None,
         screen_spectrum: None,
+        spectroradiometer: None,
         screen_power: Some(&mut power),
         source: "test".into(),
     };
@@ -588,6 +589,7 @@ fn run_verify(
             pixel_direction: &cam_direction,
         },
         mismatch_factor: report.mismatch_factor,
+        mismatch_by_level: None,
         spectral: None,
         meter_uncertainty_k2_percent: Some(1.0),
     };

@@ -141,6 +141,7 @@ fn campaign(
         spectral: Some(CameraSpectral::from_scene(&scene)),
         meter_response: Some(Table::from_csv(Path::new(METER_RESPONSE)).unwrap()),
         screen_spectrum: Some(screen_spectrum(shift_nm)),
+        spectroradiometer: None,
         screen_power: None,
         source: "test".into(),
     };
@@ -152,6 +153,180 @@ fn campaign(
     }
     let lut = DisplayLut::load(dir.path().join("lut.csv"), 8).unwrap();
     (report, lut)
+}
+
+/// The campaign of [`CALIBRATE`] with the screen's spectrum measured by the
+/// simulated spectroradiometer at the default levels instead of the white
+/// spectrum file: F per level. The spectra come after the patches, so the
+/// patches' readings are those of [`calibrate_lut`] on the same facility.
+fn calibrate_lut_measured(sim: &SimFacility) -> (radiometric::Report, DisplayLut) {
+    sim.advance(3600.0);
+    let text = CALIBRATE.replace(
+        "screen_spectrum = \"data/display/lcd_white_apple_studio_display.csv\"\n",
+        "",
+    ) + "\n[calibrate.spectroradiometer]\nkind = \"sim\"\n";
+    let cfg = CalibrateConfig::parse(&text, "calibrate.toml", 8).unwrap();
+    assert!(cfg.screen_spectrum.is_none() && cfg.spectroradiometer.is_some());
+    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut ckpt =
+        Checkpoint::open(&dir.path().join("c.jsonl"), "fp", "radiometric", false).unwrap();
+    let (mut display, mut camera, mut meter) = (sim.display(), sim.camera(), sim.meter());
+    let mut spectro = sim.spectroradiometer();
+    let clock = sim.clone();
+    let mut wait = move |s: f64| clock.advance(s);
+    let mut darks = DarkBank::shutter(4);
+    let mut inst = Instruments {
+        display: &mut display,
+        camera: &mut camera,
+        meter: Some(&mut meter),
+        darks: &mut darks,
+        wait: &mut wait,
+    };
+    let mut setup = Setup {
+        cfg: &cfg,
+        bits: 8,
+        spectral: Some(CameraSpectral::from_scene(&scene)),
+        meter_response: Some(Table::from_csv(Path::new(METER_RESPONSE)).unwrap()),
+        screen_spectrum: None,
+        spectroradiometer: Some(&mut spectro),
+        screen_power: None,
+        source: "test".into(),
+    };
+    let report = radiometric::run(&mut inst, &mut setup, &mut ckpt).unwrap();
+    radiometric::write(&report, &setup, &Outputs::in_dir(dir.path())).unwrap();
+    let lut = DisplayLut::load(dir.path().join("lut.csv"), 8).unwrap();
+    (report, lut)
+}
+
+/// The screen point on the camera's axis (where the central region looks).
+fn axis_screen_point(sim: &SimFacility) -> (f64, f64) {
+    let (mut u, mut v) = (960.0, 540.0);
+    for _ in 0..50 {
+        let (x, y) = sim.true_camera_pixel(u, v);
+        u -= (x - 64.0) * 0.9;
+        v -= (y - 64.0) * 0.9;
+    }
+    (u, v)
+}
+
+/// A LUT against the truth at the axis: RMS and max |error| over the
+/// levels above 1 % of the maximum, and the mean error over those above
+/// 10 % (the scale's), fractions.
+fn lut_errors(sim: &SimFacility, lut: &DisplayLut) -> (f64, f64, f64) {
+    let p = axis_screen_point(sim);
+    let top = sim.true_camera_effective_radiance(255, p);
+    let (mut s2, mut n, mut worst, mut sum, mut m) = (0.0, 0, 0.0f64, 0.0, 0);
+    for level in 0..=255usize {
+        let truth = sim.true_camera_effective_radiance(level, p);
+        let e = lut.radiance(level as f64) / truth - 1.0;
+        if truth > 0.01 * top {
+            s2 += e * e;
+            n += 1;
+            worst = worst.max(e.abs());
+        }
+        if truth > 0.1 * top {
+            sum += e;
+            m += 1;
+        }
+    }
+    ((s2 / n as f64).sqrt(), worst, sum / m as f64)
+}
+
+/// F per level from the simulated spectroradiometer's spectra: each
+/// measured F follows the simulator's own ratio of camera-effective
+/// radiance to meter reading (its integrals, not the calibration's) in
+/// its change with level, within 0.1 % (the spectra's 0.3 nm wavelength
+/// error cancels in the ratio to the white; their noise is 0.2 % per 5 nm
+/// bin); and applied to each reading it removes the scale's bias that the
+/// white's single F leaves, on the same patches' readings.
+#[test]
+fn f_per_level_from_measured_spectra_removes_the_scale_bias() {
+    let (file_report, file_lut) = calibrate_lut(&small_facility(), &mut DarkBank::shutter(4));
+    let sim = small_facility();
+    let (report, lut) = calibrate_lut_measured(&sim);
+    let screen = sim.screen();
+    let f_true = |l: u32| screen.camera_effective[l as usize] / screen.meter[l as usize];
+    let points = &report.mismatch_by_level;
+    assert_eq!(
+        points.iter().map(|p| p.level).collect::<Vec<_>>(),
+        [64, 96, 128, 159, 191, 223, 255]
+    );
+    let white = points.last().unwrap();
+    for p in points {
+        let measured = p.factor / white.factor;
+        let truth = f_true(p.level) / f_true(255);
+        println!(
+            "level {:3}: F {:.5} (truth {:.5}), relative to white {:.5} (truth {:.5}), noise {:.4} %, 1 nm {:.3} %",
+            p.level,
+            p.factor,
+            f_true(p.level),
+            measured,
+            truth,
+            p.noise_k2_percent,
+            p.wavelength_k2_percent.unwrap()
+        );
+        assert!((measured / truth - 1.0).abs() < 1e-3, "level {}", p.level);
+        assert_eq!(p.spectra, 2);
+    }
+    // The scale, recomputed here: each level's meter reading × F at its
+    // level, linear between the measured levels, fitted to the camera
+    // response over the levels above 10 % of the top's (and not the
+    // white's F for all, which differs by more than 0.1 %).
+    let f_at = |level: f64| {
+        let k = points
+            .iter()
+            .position(|p| p.level as f64 >= level)
+            .unwrap_or(points.len() - 1)
+            .max(1);
+        let (a, b) = (&points[k - 1], &points[k]);
+        let t = ((level - a.level as f64) / (b.level - a.level) as f64).clamp(0.0, 1.0);
+        a.factor + t * (b.factor - a.factor)
+    };
+    let top = report.levels.last().unwrap().camera_dn_per_s;
+    let fit = |f: &dyn Fn(f64) -> f64| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for l in report
+            .levels
+            .iter()
+            .filter(|l| l.camera_dn_per_s >= 0.1 * top)
+        {
+            num += l.camera_dn_per_s * f(l.level as f64) * l.meter.unwrap();
+            den += l.camera_dn_per_s * l.camera_dn_per_s;
+        }
+        num / den
+    };
+    let expect = fit(&f_at);
+    assert!(
+        (report.scale / expect - 1.0).abs() < 1e-9,
+        "{} vs {expect}",
+        report.scale
+    );
+    assert!((fit(&|_| white.factor) / expect - 1.0).abs() > 1e-3);
+    // The effect is there to correct: F changes by more than 1 % over the levels.
+    assert!(f_true(64) / f_true(255) < 0.99);
+    let (rms0, max0, bias0) = lut_errors(&sim, &file_lut);
+    let (rms, max, bias) = lut_errors(&sim, &lut);
+    println!(
+        "white F {:?}: LUT error RMS {:.3} %, max {:.3} %, scale bias {:+.3} %, spectral trend {:.3} %",
+        file_report.mismatch_factor,
+        100.0 * rms0,
+        100.0 * max0,
+        100.0 * bias0,
+        file_report.budget.spectral_trend_k2_percent
+    );
+    println!(
+        "F per level: LUT error RMS {:.3} %, max {:.3} %, scale bias {:+.3} %, spectral trend {:.3} %; {}",
+        100.0 * rms,
+        100.0 * max,
+        100.0 * bias,
+        report.budget.spectral_trend_k2_percent,
+        report.budget.describe()
+    );
+    assert!(rms < 0.005, "LUT RMS error {:.3} %", 100.0 * rms);
+    assert!(bias.abs() < bias0.abs(), "{bias} vs {bias0}");
+    // The trend term now bounds the interpolation only: below the white F's.
+    assert!(report.budget.spectral_trend_k2_percent < file_report.budget.spectral_trend_k2_percent);
 }
 
 /// Largest |a/b − 1| over the levels above 1 % of b's maximum, and at
@@ -482,6 +657,7 @@ fn verify_on(
             pixel_direction: &direction,
         },
         mismatch_factor: report.mismatch_factor,
+        mismatch_by_level: None,
         spectral: Some(CameraSpectral::from_scene(&scene)),
         meter_uncertainty_k2_percent: Some(1.0),
     };

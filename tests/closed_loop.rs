@@ -14,7 +14,10 @@
 //! responsivity, each off by an error drawn within its declared
 //! uncertainty), the nominal white spectrum of the panel (the simulated
 //! panel's grey levels are three channels with their own tone curves and a
-//! bluer black leak), darks it takes itself (`dark = "shutter"`), and one
+//! bluer black leak), or with `OPTISTIM_F_PER_LEVEL=1` instead a
+//! spectroradiometer on the meter's spot, its wavelength scale 0.3 nm off,
+//! measuring the spectrum at several levels for F per level (see
+//! [`f_per_level`]), darks it takes itself (`dark = "shutter"`), and one
 //! simulated clock across all its commands (`--sim-clock`), started an hour
 //! after power-on as a campaign's procedure asks (docs/CALIBRATION.md). The
 //! simulator models bias, dark current, row noise, a camera
@@ -64,13 +67,27 @@ fn data(name: &str) -> PathBuf {
     root().join(DATA).join(name)
 }
 
+/// Whether the honest campaign measures F per level with a simulated
+/// spectroradiometer (`OPTISTIM_F_PER_LEVEL=1`) instead of taking the
+/// white's F from the nominal spectrum. Not yet the default: with the
+/// greys' F bias removed, seed 9's verify misses its camera threshold
+/// (1.67 % against 1.65 %): its lab responsivity is drawn −1.39 % (1.9σ of
+/// the declared 1.5 % k = 2), which the bias used to offset
+/// (docs/CALIBRATION.md, "The closed loop").
+fn f_per_level() -> bool {
+    std::env::var_os("OPTISTIM_F_PER_LEVEL").is_some_and(|v| v == "1")
+}
+
 /// What a campaign is given, varied by the negative tests.
 #[derive(Clone)]
 struct Given {
     /// `calibrate.camera.dark`.
     dark: &'static str,
-    /// `calibrate.screen_spectrum`.
+    /// `calibrate.screen_spectrum`, when there is no spectroradiometer.
     spectrum: PathBuf,
+    /// `[calibrate.spectroradiometer]`: the spectrum measured per level
+    /// instead of the file.
+    spectroradiometer: bool,
     /// The camera intrinsics the geometric and flat routines use.
     intrinsics: PathBuf,
 }
@@ -165,6 +182,7 @@ impl Campaign {
         Given {
             dark: "shutter",
             spectrum: root().join("data/display/lcd_white_apple_studio_display.csv"),
+            spectroradiometer: f_per_level(),
             intrinsics: self.path("lab/intrinsics.toml"),
         }
     }
@@ -200,6 +218,10 @@ impl Campaign {
         let opt = |key: &str, p: &Option<PathBuf>| match p {
             Some(p) => format!("{key} = \"{}\"\n", p.display()),
             None => String::new(),
+        };
+        let spectrum = match given.spectroradiometer {
+            true => "[calibrate.spectroradiometer]\nkind = \"sim\"\n".to_string(),
+            false => format!("screen_spectrum = \"{}\"\n", given.spectrum.display()),
         };
         format!(
             r#"
@@ -244,9 +266,8 @@ region = [0.4, 0.4, 0.2, 0.2]
 target_fill = 0.6
 max_exposure = 1.0
 ambient = "none"
-screen_spectrum = "{spectrum}"
 screen_spectrum_uncertainty_nm = 1.0
-[calibrate.flat]
+{spectrum}[calibrate.flat]
 levels = [128, 255]
 degree = 4
 camera_flat = "{camera_flat}"
@@ -274,7 +295,7 @@ responsivity = "{responsivity}"
             lut = files.lut.display(),
             flat = opt("flat_field", &files.flat),
             geometry = opt("geometry", &files.geometry),
-            spectrum = given.spectrum.display(),
+            spectrum = spectrum,
             intrinsics = given.intrinsics.display(),
             meter = root().join("configs/meter_flat_380_780.csv").display(),
             camera_flat = self.path("lab/camera_flat.tif").display(),
@@ -577,6 +598,55 @@ fn honest_campaigns_reproduce_the_render_over_ten_seeds() {
     }
 }
 
+/// The CLI path of F per level (seed 1): `[calibrate.spectroradiometer]
+/// kind = "sim"` measures the spectrum at the default seven levels, the
+/// report and the LUT header carry F per level, verify reads the meter
+/// with it and passes, and the run's disk lies within its claim.
+#[test]
+fn a_campaign_with_a_spectroradiometer_applies_f_per_level_through_the_cli() {
+    let c = Campaign::new(1);
+    let given = Given {
+        spectroradiometer: true,
+        ..c.honest()
+    };
+    let files = c.calibrate("spectro", &given);
+    let text = std::fs::read_to_string(c.path("cal_spectro/radiometric_report.json")).unwrap();
+    let report: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let points = report["mismatch_by_level"].as_array().unwrap();
+    let levels: Vec<u64> = points
+        .iter()
+        .map(|p| p["level"].as_u64().unwrap())
+        .collect();
+    assert_eq!(levels, [64, 96, 128, 159, 191, 223, 255]);
+    let f: Vec<f64> = points
+        .iter()
+        .map(|p| p["factor"].as_f64().unwrap())
+        .collect();
+    // The simulated panel's greys are bluer: F rises with level.
+    assert!(f.windows(2).all(|w| w[1] > w[0]), "{f:?}");
+    assert_eq!(report["mismatch_factor"].as_f64(), Some(f[6]));
+    let lut = std::fs::read_to_string(&files.lut).unwrap();
+    assert!(
+        lut.contains("F(level)") && lut.contains("255 0.79"),
+        "{lut}"
+    );
+    let (verified, v) = c.verify("spectro", &given, &files);
+    println!(
+        "F per level {f:?}; verify {verified}, mean meter error {}",
+        v["mean_meter_error_percent"]
+    );
+    assert!(verified);
+    let reference = reference_of(&c.path("moon.toml"));
+    let floor = c.black_level_electrons(&reference);
+    let cmp = compare(
+        &c.run_and_capture("spectro", c.facility(&given, &files)),
+        &reference.electrons,
+        floor,
+    );
+    println!("closed loop with F per level: {cmp:?}");
+    assert!(cmp.u_k2.unwrap() <= U_K2_QUOTED && cmp.passes(), "{cmp:?}");
+}
+
 /// A copy of the white spectrum with its wavelengths moved by `nm`.
 fn shifted_spectrum(c: &Campaign, nm: f64) -> PathBuf {
     let text = std::fs::read_to_string(c.honest().spectrum).unwrap();
@@ -656,9 +726,11 @@ fn each_omission_is_caught_by_verify_or_the_closed_loop() {
         !v || !cmp.passes() || uncovered.is_empty(),
         "no darks went unnoticed and outside the LUT's stated uncertainty at levels {uncovered:?}: {cmp:?}"
     );
-    // The screen spectrum 2 nm off: the mismatch factor errs.
+    // A campaign without a spectroradiometer given a white spectrum 2 nm
+    // off: the mismatch factor errs.
     let given = Given {
         spectrum: shifted_spectrum(&c, 2.0),
+        spectroradiometer: false,
         ..honest.clone()
     };
     let (v, cmp) = omission(&c, "spectrum_2nm", &given);

@@ -9,7 +9,7 @@
 //! | meter scale | `calibrate.meter.scale_uncertainty_k2_percent` (the meter's own calibration) |
 //! | spectral mismatch | \|F(S shifted by `screen_spectrum_uncertainty_nm`) / F − 1\|, the larger of ±shift |
 //! | scale fit | 2 × the standard error of the meter/camera ratios the scale is fitted to |
-//! | spectral trend | 2 × \|s / r_top − 1\| / √3: the fitted scale s against the top level's own ratio r_top, where the screen shows the white whose spectrum F comes from (a broadband meter only; greys whose spectrum differs carry their F error into s) |
+//! | spectral trend | with F per level ([`mismatch_levels`](super::mismatch_levels)): what its interpolation in level leaves, with the measured F's noise; with one F: 2 × \|s / r_top − 1\| / √3, the fitted scale s against the top level's own ratio r_top, where the screen shows the white whose spectrum F comes from (a broadband meter only; greys whose spectrum differs carry their F error into s) |
 //! | drift | 2 × \|drift\| / √3 (the reference's change over the campaign, as a rectangular bound) |
 //!
 //! A component that is not declared counts 0 and the report says so.

@@ -19,6 +19,7 @@
 //! # mismatch_factor = 1.0     # F of docs/CALIBRATION.md when not computed from spectra
 //! # screen_spectrum = "screen_white.csv"  # wavelength_nm,value (relative) for F
 //! # screen_spectrum_uncertainty_nm = 1.0  # its wavelength-scale uncertainty (budget)
+//! # spectrum_levels = [64, 96, 128, 159, 191, 223, 255]  # spectra for F per level (default with a spectroradiometer)
 //! # camera_responsivity = 1e-5 # W m⁻² sr⁻¹ per (DN/s) in the region: the scale without a meter
 //! out_dir = "calib"           # where the LUT, flat field, reports and checkpoints go
 //!
@@ -35,6 +36,7 @@
 //!
 //! [calibrate.geometric]       # see docs/GEOMETRIC.md
 //! [calibrate.meter]           # see docs/INSTRUMENTS.md
+//! [calibrate.spectroradiometer]  # optional: the screen's spectrum per level (same keys as the meter)
 //! [calibrate.camera]
 //! ```
 //!
@@ -93,6 +95,12 @@ pub struct CalibrateConfig {
     pub mismatch_factor: Option<f64>,
     #[serde(default)]
     pub screen_spectrum: Option<PathBuf>,
+    /// Drive levels at which the screen's spectrum is measured, for F per
+    /// level (any order; repeats are merged). Default with a
+    /// spectroradiometer: [`default_spectrum_levels`].
+    /// (Signed, so a negative level gets this key's range error.)
+    #[serde(default)]
+    pub spectrum_levels: Option<Vec<i64>>,
     /// Declared uncertainty of the collimator's focal length, %: the
     /// geometric routine flags a larger disagreement with the focal
     /// length its fit implies.
@@ -112,6 +120,10 @@ pub struct CalibrateConfig {
     pub verify: VerifyConfig,
     #[serde(default)]
     pub meter: Option<SpotMeterConfig>,
+    /// `[calibrate.spectroradiometer]`: measures the screen's spectrum at
+    /// `spectrum_levels` (the meter's keys).
+    #[serde(default)]
+    pub spectroradiometer: Option<SpotMeterConfig>,
     pub camera: CameraConfig,
     /// `[calibrate.geometric]`, read by
     /// [`geometric::GeometricConfig`](super::geometric::GeometricConfig).
@@ -313,6 +325,9 @@ impl CalibrateConfig {
         if let Some(m) = &mut self.meter {
             m.resolve_paths(dir);
         }
+        if let Some(m) = &mut self.spectroradiometer {
+            m.resolve_paths(dir);
+        }
         self.camera.resolve_paths(dir);
     }
 
@@ -378,6 +393,10 @@ impl CalibrateConfig {
         if let Some(m) = &self.meter {
             m.validate()?;
         }
+        if let Some(m) = &self.spectroradiometer {
+            m.validate_as(SPECTRORADIOMETER_KEY)?;
+        }
+        self.validate_spectra(top)?;
         self.camera.validate()?;
         if self.camera.dark.is_none() {
             return Err(Error::invalid(
@@ -397,11 +416,87 @@ impl CalibrateConfig {
         Ok(())
     }
 
+    /// `spectrum_levels` within the display's range with at least two
+    /// distinct levels, and one source of the screen's spectral shape.
+    fn validate_spectra(&self, top: u32) -> Result<()> {
+        if let Some(levels) = &self.spectrum_levels {
+            if let Some(l) = levels.iter().find(|&&l| !(0..=top as i64).contains(&l)) {
+                return Err(Error::invalid(
+                    key("spectrum_levels"),
+                    format!("level {l} outside the display's levels 0..={top}"),
+                ));
+            }
+            levels_in_range("spectrum_levels", &self.spectrum_level_set(), top)?;
+            let mut distinct = levels.clone();
+            distinct.sort_unstable();
+            distinct.dedup();
+            if distinct.len() < 2 {
+                return Err(Error::invalid(
+                    key("spectrum_levels"),
+                    format!("needs at least two distinct levels, found {levels:?}"),
+                ));
+            }
+        }
+        let measured = self.spectrum_levels.is_some() || self.spectroradiometer.is_some();
+        if measured && self.screen_spectrum.is_some() {
+            return Err(Error::invalid(
+                key("screen_spectrum"),
+                "given with measured spectra (spectrum_levels or [calibrate.spectroradiometer]): \
+                 keep one source of the screen's spectrum",
+            ));
+        }
+        if measured && self.mismatch_factor.is_some() {
+            return Err(Error::invalid(
+                key("mismatch_factor"),
+                "given with measured spectra (spectrum_levels or [calibrate.spectroradiometer]): \
+                 F comes from the spectra; remove one",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The levels whose spectra give F per level, sorted and distinct:
+    /// `spectrum_levels`, else [`default_spectrum_levels`] with a
+    /// spectroradiometer, else none (F from `screen_spectrum`).
+    pub fn spectrum_levels(&self, bits: u32) -> Option<Vec<u32>> {
+        match (&self.spectrum_levels, &self.spectroradiometer) {
+            (Some(_), _) => Some(self.spectrum_level_set()),
+            (None, Some(_)) => Some(default_spectrum_levels(top_level(bits).unwrap_or(255))),
+            (None, None) => None,
+        }
+    }
+
+    /// `spectrum_levels` sorted and distinct (negative ones dropped:
+    /// [`validate`](Self::validate) refuses them).
+    fn spectrum_level_set(&self) -> Vec<u32> {
+        let mut l: Vec<u32> = self
+            .spectrum_levels
+            .iter()
+            .flatten()
+            .filter_map(|&l| u32::try_from(l).ok())
+            .collect();
+        l.sort_unstable();
+        l.dedup();
+        l
+    }
+
     /// The reference level (default: the top level).
     pub fn reference(&self, bits: u32) -> u32 {
         self.reference_level
             .unwrap_or_else(|| top_level(bits).unwrap_or(255))
     }
+}
+
+/// Key of the spectroradiometer's table.
+pub const SPECTRORADIOMETER_KEY: &str = "calibrate.spectroradiometer";
+
+/// Default levels of the spectra: round(top · j/8), j = 2 … 8 (64 … 255 on
+/// 8 bits), spanning the levels above 10 % of the top's signal that set
+/// the absolute scale (≥ ~90 for a gamma-2.2 screen) with room below.
+pub fn default_spectrum_levels(top: u32) -> Vec<u32> {
+    (2..=8)
+        .map(|j| (top as f64 * j as f64 / 8.0).round() as u32)
+        .collect()
 }
 
 /// Top drive level of a `bits`-bit display.
@@ -530,8 +625,92 @@ mod tests {
         assert_eq!(c.reference(10), 1023);
     }
 
+    #[test]
+    fn spectrum_levels_are_checked_sorted_and_defaulted() {
+        let parse = |extra: &str| {
+            CalibrateConfig::parse(&format!("[calibrate]\n{extra}\n{CAMERA}"), "f.toml", 8)
+        };
+        let cases = [
+            (
+                "spectrum_levels = [300, 255]",
+                "calibrate.spectrum_levels",
+                "outside",
+            ),
+            (
+                "spectrum_levels = [128, 128]",
+                "calibrate.spectrum_levels",
+                "two distinct",
+            ),
+            (
+                "spectrum_levels = []",
+                "calibrate.spectrum_levels",
+                "levels",
+            ),
+            (
+                "spectrum_levels = [-1, 5]",
+                "calibrate.spectrum_levels",
+                "outside",
+            ),
+            (
+                "spectrum_levels = [64, 255]\nscreen_spectrum = \"w.csv\"",
+                "calibrate.screen_spectrum",
+                "one source",
+            ),
+            (
+                "mismatch_factor = 0.8\n[calibrate.spectroradiometer]\nkind = \"sim\"",
+                "calibrate.mismatch_factor",
+                "",
+            ),
+            (
+                "[calibrate.spectroradiometer]\nkind = \"serial\"",
+                "calibrate.spectroradiometer.port",
+                "",
+            ),
+        ];
+        for (extra, name, what) in cases {
+            let e = parse(extra).unwrap_err().to_string();
+            assert!(e.contains(name) && e.contains(what), "{extra}: {e}");
+            assert!(e.contains("f.toml") && !e.contains('\n'), "{e}");
+        }
+        let c = parse("spectrum_levels = [255, 64, 128, 64]").unwrap();
+        assert_eq!(c.spectrum_levels(8), Some(vec![64, 128, 255]));
+        assert_eq!(parse("").unwrap().spectrum_levels(8), None);
+        let c = parse("[calibrate.spectroradiometer]\nkind = \"sim\"").unwrap();
+        // round(255 j / 8), j = 2 … 8.
+        assert_eq!(
+            c.spectrum_levels(8),
+            Some(vec![64, 96, 128, 159, 191, 223, 255])
+        );
+        assert_eq!(default_spectrum_levels(1023)[0], 256);
+    }
+
     proptest::proptest! {
         #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// Any list of levels is accepted exactly when every level is at
+        /// most the top and at least two differ; then it is used sorted and
+        /// without repeats.
+        #[test]
+        fn spectrum_levels_are_accepted_exactly_when_valid(
+            levels in proptest::collection::vec(0u32..400, 0..8)
+        ) {
+            let list: Vec<String> = levels.iter().map(|l| l.to_string()).collect();
+            let text = format!("[calibrate]\nspectrum_levels = [{}]\n{CAMERA}", list.join(", "));
+            let mut set = levels.clone();
+            set.sort_unstable();
+            set.dedup();
+            let valid = set.len() >= 2 && set.iter().all(|&l| l <= 255);
+            match CalibrateConfig::parse(&text, "f.toml", 8) {
+                Ok(c) => {
+                    proptest::prop_assert!(valid, "{levels:?} accepted");
+                    proptest::prop_assert_eq!(c.spectrum_levels(8), Some(set));
+                }
+                Err(e) => {
+                    proptest::prop_assert!(!valid, "{levels:?}: {e}");
+                    proptest::prop_assert!(e.to_string().contains("calibrate.spectrum_levels"));
+                }
+            }
+        }
+
         /// Arbitrary text in the table is Ok or a named error, never a panic.
         #[test]
         fn parser_never_panics(body in "[a-z_ =0-9.\\[\\],\"\n-]{0,120}") {

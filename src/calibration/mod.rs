@@ -14,6 +14,7 @@
 //! | [`checkpoint`] | the crash-safe JSONL log of measurements, `--resume` |
 //! | [`dark`] | dark frames per exposure (bias + dark current), cached for a campaign |
 //! | [`mismatch`] | camera-effective radiance and the spectral mismatch factor F |
+//! | [`mismatch_levels`] | F per drive level from spectra measured at several levels, its interpolation and bound |
 //! | [`radiometric`] | drive level → camera-effective radiance: the LUT CSV, report and plot |
 //! | [`geometric`] | dot patterns → the geometry CSV (screen pixel → camera direction) |
 //! | [`focal`] | the collimator focal length the geometry implies near the axis |
@@ -31,6 +32,7 @@ pub mod flat;
 pub mod focal;
 pub mod geometric;
 pub mod mismatch;
+pub mod mismatch_levels;
 pub mod radiometric;
 pub mod responsivity;
 pub mod verify;

@@ -14,6 +14,9 @@
 //! repeats' scatter is the noise; data that decrease beyond 3σ of it are
 //! refused with the levels named. The LUT is the measured table; the run's
 //! PCHIP interpolates it, and leave-one-out PCHIP residuals are reported.
+//! With `spectrum_levels` (or a spectroradiometer) the screen's spectrum is
+//! measured at several levels after the patches and each meter reading is
+//! scaled by F at its own level ([`mismatch_levels`](super::mismatch_levels)).
 
 use std::path::{Path, PathBuf};
 
@@ -23,10 +26,12 @@ use super::budget::{self, Budget, LevelUncertainty};
 use super::checkpoint::Checkpoint;
 use super::config::{level_ladder, top_level, AmbientMode, CalibrateConfig};
 use super::mismatch::{CameraSpectral, Spectrum};
+use super::mismatch_levels::{self, LevelMismatch, MismatchCurve};
 use super::{progress, read_meter, show_level, AutoExposure, Instruments, Rect};
 use crate::error::{Error, Result};
 use crate::facility::lut::{Pchip, LUT_HEADER_UNCERTAINTY};
 use crate::figures::{curve_figure, CurveFigure, Panel, Series, PALETTE};
+use crate::instruments::SpotMeter;
 use crate::radiometry::spectrum::Table;
 
 /// Name of the routine in checkpoints and reports.
@@ -61,6 +66,9 @@ pub struct Setup<'a> {
     pub meter_response: Option<Table>,
     /// A configured screen spectrum, `(nm, relative)`.
     pub screen_spectrum: Option<Vec<(f64, f64)>>,
+    /// The spectroradiometer measuring the screen's spectrum at
+    /// `calibrate.spectrum_levels` (none: the meter, if those are given).
+    pub spectroradiometer: Option<&'a mut dyn SpotMeter>,
     /// With `ambient = "prompt"`: called with `true` to have the screen
     /// switched off, `false` to have it back on.
     pub screen_power: Option<&'a mut dyn FnMut(bool) -> Result<()>>,
@@ -102,8 +110,13 @@ pub struct Report {
     pub scale_method: String,
     /// Radiance per DN/s.
     pub scale: f64,
-    /// Spectral mismatch factor used (scalar meter).
+    /// Spectral mismatch factor used (scalar meter); with F per level, the
+    /// highest measured level's.
     pub mismatch_factor: Option<f64>,
+    /// F per measured level, when the spectra were measured (applied to
+    /// each reading interpolated in level).
+    #[serde(default)]
+    pub mismatch_by_level: Vec<LevelMismatch>,
     /// The scale-wide components of the uncertainty budget.
     #[serde(default)]
     pub budget: Budget,
@@ -142,6 +155,7 @@ pub fn run(inst: &mut Instruments, setup: &mut Setup, ckpt: &mut Checkpoint) -> 
         .map_or("none".to_string(), |m| m.describe());
 
     let power = setup.screen_power.take();
+    let spectroradiometer = setup.spectroradiometer.take();
     let setup: &Setup = setup;
     let mut taker = Taker::new(setup, inst)?;
     let ambient = match cfg.ambient {
@@ -159,10 +173,11 @@ pub fn run(inst: &mut Instruments, setup: &mut Setup, ckpt: &mut Checkpoint) -> 
     let end = taker.take(inst, ckpt, "ref_end", reference, 0, &bar)?;
     bar.finish_and_clear();
     let drift_percent = (end.dn_per_s / start.dn_per_s - 1.0) * 100.0;
+    let curve = measured_mismatch(inst, spectroradiometer, setup, ckpt)?;
 
     let mut levels = reduce(&ladder, &all, cfg.repeats, ambient.as_ref())?;
     check_monotone(&levels)?;
-    let scale = absolute_scale(&mut levels, setup, ambient.as_ref())?;
+    let scale = absolute_scale(&mut levels, setup, curve.as_ref())?;
     for l in &mut levels {
         l.radiance = (scale.factor * l.camera_dn_per_s).max(0.0);
     }
@@ -192,6 +207,7 @@ pub fn run(inst: &mut Instruments, setup: &mut Setup, ckpt: &mut Checkpoint) -> 
         scale_method: scale.method,
         scale: scale.factor,
         mismatch_factor: scale.mismatch,
+        mismatch_by_level: curve.map_or(Vec::new(), |c| c.points().to_vec()),
         ambient_radiance: ambient.map(|a| a.dn_per_s * scale.factor),
         black_radiance: levels[0].radiance,
         max_radiance: levels.last().map_or(0.0, |l| l.radiance),
@@ -333,6 +349,43 @@ impl Taker {
     }
 }
 
+/// F per level from spectra measured now at `calibrate.spectrum_levels`,
+/// when a spectroradiometer or those levels are configured.
+fn measured_mismatch(
+    inst: &mut Instruments,
+    spectroradiometer: Option<&mut dyn SpotMeter>,
+    setup: &Setup,
+    ckpt: &mut Checkpoint,
+) -> Result<Option<MismatchCurve>> {
+    let cfg = setup.cfg;
+    let Some(levels) = cfg.spectrum_levels(setup.bits) else {
+        return Ok(None);
+    };
+    let (Some(spectral), Some(meter)) = (&setup.spectral, &setup.meter_response) else {
+        return Err(Error::invalid(
+            "calibrate.meter.spectral_response",
+            "missing: F per level needs the meter's spectral response and the scene's camera",
+        ));
+    };
+    let spectra = mismatch_levels::measure(
+        inst,
+        spectroradiometer,
+        ckpt,
+        &levels,
+        cfg.repeats,
+        setup.bits,
+        cfg.settle,
+        spectral.band_nm,
+    )?;
+    MismatchCurve::from_spectra(
+        spectral,
+        meter,
+        &spectra,
+        cfg.screen_spectrum_uncertainty_nm,
+    )
+    .map(Some)
+}
+
 /// Averages the repeats of each level (ambient subtracted).
 fn reduce(
     ladder: &[u32],
@@ -464,7 +517,7 @@ pub const SCALE_FLOOR: f64 = 0.1;
 fn absolute_scale(
     levels: &mut [LevelResult],
     setup: &Setup,
-    ambient: Option<&Measurement>,
+    curve: Option<&MismatchCurve>,
 ) -> Result<Scale> {
     let cfg = setup.cfg;
     let has_meter = levels.iter().any(|l| l.meter.is_some());
@@ -485,16 +538,19 @@ fn absolute_scale(
             spectral_trend_k2_percent: 0.0,
         });
     }
-    let _ = ambient;
-    let (targets, method, mismatch) = meter_radiances(levels, setup)?;
+    let (targets, method, mismatch) = match curve {
+        Some(c) => per_level_radiances(levels, c),
+        None => meter_radiances(levels, setup)?,
+    };
     let top = levels.last().map_or(0.0, |l| l.camera_dn_per_s);
-    let (mut num, mut den, mut ratios) = (0.0, 0.0, Vec::new());
+    let (mut num, mut den, mut ratios, mut used) = (0.0, 0.0, Vec::new(), Vec::new());
     for (l, t) in levels.iter().zip(&targets) {
         if let Some(t) = t {
             if l.camera_dn_per_s >= SCALE_FLOOR * top {
                 num += l.camera_dn_per_s * t;
                 den += l.camera_dn_per_s * l.camera_dn_per_s;
                 ratios.push(t / l.camera_dn_per_s);
+                used.push(l.level);
             }
         }
     }
@@ -505,21 +561,28 @@ fn absolute_scale(
         ));
     }
     let mismatch_k2_percent = match (
+        curve,
         cfg.screen_spectrum_uncertainty_nm,
         &setup.spectral,
         &setup.meter_response,
         &setup.screen_spectrum,
     ) {
-        (Some(nm), Some(c), Some(m), Some(sp))
+        (Some(curve), ..) => curve.wavelength_k2_percent(),
+        (None, Some(nm), Some(c), Some(m), Some(sp))
             if mismatch.is_some() && cfg.mismatch_factor.is_none() =>
         {
             Some(budget::mismatch_sensitivity_percent(c, sp, m, nm)?)
         }
         _ => None,
     };
-    // The top level shows the white F comes from (a broadband meter's F).
-    let spectral_trend_k2_percent = match (mismatch, ratios.last()) {
-        (Some(_), Some(&top_ratio)) => budget::spectral_trend_k2_percent(num / den, top_ratio),
+    // With F per level: what its interpolation leaves. With one F (the
+    // white's, shown at the top level): the scale against the top level's
+    // own ratio.
+    let spectral_trend_k2_percent = match (curve, mismatch, ratios.last()) {
+        (Some(c), ..) => c.trend_k2_percent(&used),
+        (None, Some(_), Some(&top_ratio)) => {
+            budget::spectral_trend_k2_percent(num / den, top_ratio)
+        }
         _ => 0.0,
     };
     Ok(Scale {
@@ -574,6 +637,27 @@ fn meter_radiances(
         format!("spot meter × spectral mismatch factor F = {f:.6}"),
         Some(f),
     ))
+}
+
+/// The meter's camera-effective radiance per level with F at the level.
+fn per_level_radiances(
+    levels: &[LevelResult],
+    curve: &MismatchCurve,
+) -> (Vec<Option<f64>>, String, Option<f64>) {
+    let targets = levels
+        .iter()
+        .map(|l| l.meter.map(|v| curve.at(l.level as f64) * v))
+        .collect();
+    let measured: Vec<String> = curve.points().iter().map(|p| p.level.to_string()).collect();
+    (
+        targets,
+        format!(
+            "spot meter × spectral mismatch factor F(level), linear in level between spectra measured at levels {} ({})",
+            measured.join(" "),
+            curve.describe()
+        ),
+        Some(curve.top()),
+    )
 }
 
 /// Leave-one-out PCHIP residuals at the interior levels; returns (RMS,

@@ -10,7 +10,8 @@
 //!   etendue, and the collimator's transmission τ:
 //!   L = (DN/s) ÷ (flat · etendue) ÷ (R · τ);
 //! * the meter: a spectroradiometer's spectrum gives camera-effective
-//!   radiance directly, a broadband meter F × reading.
+//!   radiance directly, a broadband meter F × reading (F at the patch's
+//!   drive level when the calibration measured F per level).
 //!
 //! achieved/target − 1 per patch and instrument, in per cent, against a
 //! threshold from the uncertainty budget (the LUT's per-level uncertainty
@@ -27,6 +28,7 @@ use serde::{Deserialize, Serialize};
 use super::checkpoint::Checkpoint;
 use super::config::CalibrateConfig;
 use super::mismatch::CameraSpectral;
+use super::mismatch_levels::MismatchCurve;
 use super::radiometric::SCALE_FLOOR;
 use super::responsivity::CameraResponsivity;
 use super::{progress, read_meter, show_level, AutoExposure, Instruments, Rect};
@@ -71,6 +73,9 @@ pub struct VerifySetup<'a> {
     pub camera: AbsoluteCamera<'a>,
     /// F for a broadband meter.
     pub mismatch_factor: Option<f64>,
+    /// F per drive level (the radiometric report's), used instead of
+    /// `mismatch_factor` when given.
+    pub mismatch_by_level: Option<MismatchCurve>,
     /// The camera's spectral weighting, for a spectroradiometer's spectra.
     pub spectral: Option<CameraSpectral>,
     /// The meter's scale uncertainty (k = 2, %), if declared.
@@ -282,7 +287,14 @@ impl Session<'_, '_> {
             self.setup.mismatch_factor,
         ) {
             (Some(s), Some(c), _) => c.effective_radiance(s).map(|l| Some((l, false))),
-            (_, _, Some(f)) => Ok(Some((f * m.value, true))),
+            (_, _, Some(f)) => {
+                let f = self
+                    .setup
+                    .mismatch_by_level
+                    .as_ref()
+                    .map_or(f, |c| c.at(level as f64));
+                Ok(Some((f * m.value, true)))
+            }
             _ => Err(Error::invalid(
                 "calibrate.mismatch_factor",
                 "verify needs F (or a spectroradiometer) to read the meter",

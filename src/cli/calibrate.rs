@@ -9,9 +9,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 
 use optistim::calibration::checkpoint::{fingerprint, Checkpoint};
+use optistim::calibration::config::SPECTRORADIOMETER_KEY;
 use optistim::calibration::config::{calibrate_table, CalibrateConfig};
 use optistim::calibration::dark::DarkBank;
 use optistim::calibration::mismatch::{check_screen_spectrum, table_spectrum, CameraSpectral};
+use optistim::calibration::mismatch_levels::MismatchCurve;
 use optistim::calibration::responsivity::CameraResponsivity;
 use optistim::calibration::{
     flat, focal, geometric, radiometric, sleep, verify, AutoExposure, Instruments,
@@ -20,7 +22,7 @@ use optistim::facility::config::FacilityConfig;
 use optistim::facility::display::{Display, WindowDisplay, WindowOptions};
 use optistim::facility::geometry::GeometryCalibration;
 use optistim::facility::lut::{DisplayLut, FlatField};
-use optistim::instruments::config::{open_camera, open_spot_meter, DarkSource};
+use optistim::instruments::config::{open_camera, open_spot_meter, open_spot_meter_as, DarkSource};
 use optistim::instruments::intrinsics::CameraIntrinsics;
 use optistim::instruments::{Camera, SpotMeter};
 use optistim::radiometry::spectrum::Table;
@@ -67,6 +69,8 @@ struct Rig {
     display: Box<dyn Display>,
     camera: Box<dyn Camera>,
     meter: Option<Box<dyn SpotMeter>>,
+    /// `[calibrate.spectroradiometer]`.
+    spectroradiometer: Option<Box<dyn SpotMeter>>,
     sim: Option<SimFacility>,
 }
 
@@ -92,6 +96,12 @@ fn open_rig(args: &CalibrateArgs, fac: &FacilityConfig, cfg: &CalibrateConfig) -
                     scale: m.unit_scale,
                 }) as Box<dyn SpotMeter>
             }),
+            spectroradiometer: cfg.spectroradiometer.as_ref().map(|m| {
+                Box::new(ScaledMeter {
+                    inner: sim.spectroradiometer(),
+                    scale: m.unit_scale,
+                }) as Box<dyn SpotMeter>
+            }),
             sim: Some(sim),
         });
     }
@@ -106,10 +116,15 @@ fn open_rig(args: &CalibrateArgs, fac: &FacilityConfig, cfg: &CalibrateConfig) -
         Some(m) => Some(open_spot_meter(m, base)?),
         None => None,
     };
+    let spectroradiometer = match &cfg.spectroradiometer {
+        Some(m) => Some(open_spot_meter_as(m, base, SPECTRORADIOMETER_KEY)?),
+        None => None,
+    };
     Ok(Rig {
         display: Box::new(display),
         camera,
         meter,
+        spectroradiometer,
         sim: None,
     })
 }
@@ -245,7 +260,13 @@ pub fn calibrate(args: &CalibrateArgs) -> Result<()> {
         wait: &mut wait,
     };
     match args.routine {
-        Routine::Radiometric => run_radiometric(&fac, &cfg, &args.facility, &mut inst, &mut ckpt),
+        Routine::Radiometric => {
+            let spectro = rig
+                .spectroradiometer
+                .as_mut()
+                .map(|m| m.as_mut() as &mut dyn SpotMeter);
+            run_radiometric(&fac, &cfg, &args.facility, &mut inst, spectro, &mut ckpt)
+        }
         Routine::Flat => run_flat(&fac, &cfg, &mut inst, &mut ckpt),
         Routine::Verify => run_verify(&fac, &cfg, &mut inst, &mut ckpt),
         Routine::Geometric => unreachable!("handled above"),
@@ -257,6 +278,7 @@ fn run_radiometric(
     cfg: &CalibrateConfig,
     facility: &Path,
     inst: &mut Instruments,
+    spectroradiometer: Option<&mut dyn SpotMeter>,
     ckpt: &mut Checkpoint,
 ) -> Result<()> {
     let scene = Scene::from_file(&fac.scenario.scene)?;
@@ -291,6 +313,7 @@ fn run_radiometric(
         spectral: Some(spectral),
         meter_response,
         screen_spectrum,
+        spectroradiometer: spectroradiometer.map(|m| m as &mut dyn SpotMeter),
         screen_power: Some(&mut power),
         source: facility.display().to_string(),
     };
@@ -434,6 +457,13 @@ fn run_verify(
             pixel_direction: &direction,
         },
         mismatch_factor: rep.mismatch_factor,
+        mismatch_by_level: match rep.mismatch_by_level.is_empty() {
+            true => None,
+            false => Some(
+                MismatchCurve::new(rep.mismatch_by_level.clone())
+                    .with_context(|| format!("{}", rpath.display()))?,
+            ),
+        },
         spectral: Some(CameraSpectral::from_scene(&scene)),
         meter_uncertainty_k2_percent: cfg
             .meter

@@ -406,7 +406,13 @@ impl SpotMeterConfig {
     /// Checks every value's range; errors name the key
     /// (`calibrate.meter.<key>`).
     pub fn validate(&self) -> Result<()> {
-        let k = |key: &str| format!("{METER_KEY}.{key}");
+        self.validate_as(METER_KEY)
+    }
+
+    /// [`validate`](Self::validate) for the same table under another key
+    /// (`calibrate.spectroradiometer`); errors name `<table>.<key>`.
+    pub fn validate_as(&self, table: &str) -> Result<()> {
+        let k = |key: &str| format!("{table}.{key}");
         text(&k("name"), &self.name, false)?;
         if self.kind == MeterKind::Serial {
             match &self.port {
@@ -673,13 +679,24 @@ pub fn abbreviate(s: &str, max: usize) -> String {
 /// against `base_dir` (the facility file's folder). `kind = "sim"` is an
 /// error here: the simulated facility builds its own meter.
 pub fn open_spot_meter(cfg: &SpotMeterConfig, base_dir: &Path) -> Result<Box<dyn SpotMeter>> {
-    cfg.validate()?;
+    open_spot_meter_as(cfg, base_dir, METER_KEY)
+}
+
+/// [`open_spot_meter`] for the table under `table` (its errors name it):
+/// the same protocol serves a spectroradiometer
+/// (`calibrate.spectroradiometer`).
+pub fn open_spot_meter_as(
+    cfg: &SpotMeterConfig,
+    base_dir: &Path,
+    table: &str,
+) -> Result<Box<dyn SpotMeter>> {
+    cfg.validate_as(table)?;
     let mut cfg = cfg.clone();
     cfg.resolve_paths(base_dir);
     match cfg.kind {
         MeterKind::Serial => Ok(Box::new(SerialSpotMeter::open(cfg)?)),
         MeterKind::Sim => Err(Error::invalid(
-            format!("{METER_KEY}.kind"),
+            format!("{table}.kind"),
             "\"sim\" is the simulated facility's meter: it is built by the simulated facility, not opened here",
         )),
     }

@@ -7,7 +7,7 @@
 //! `docs/SIMFACILITY.md`) and implements the same seams as the hardware:
 //! [`Display`] ([`SimScreen`]), [`Camera`] ([`SimCamera`]) and
 //! [`SpotMeter`] ([`SimMeter`], also served over a pseudo-terminal by
-//! [`pty`]). All handles share one state (the frames shown and a virtual
+//! [`pty`]; [`SimSpectroradiometer`] on the same spot). All handles share one state (the frames shown and a virtual
 //! clock) behind a mutex: a `present` advances the clock by one refresh, a
 //! capture by its exposure, a meter reading by its integration time, never
 //! by sleeping.
@@ -204,6 +204,15 @@ impl SimFacility {
         }
     }
 
+    /// A spectroradiometer on the meter's spot: every reading carries the
+    /// spectrum (380–780 nm, 5 nm) with the meter's wavelength-scale error
+    /// and per-bin noise, whatever `meter.spectrometer` says.
+    pub fn spectroradiometer(&self) -> SimSpectroradiometer {
+        SimSpectroradiometer {
+            facility: self.clone(),
+        }
+    }
+
     /// True camera-effective radiance (W m⁻² sr⁻¹, at the screen, before
     /// the collimator) of drive `level` at screen position (u, v), now
     /// (warm-up and drift included).
@@ -390,6 +399,12 @@ impl SimFacility {
 
     /// One meter reading over [now − integration, now].
     fn read_meter(&self) -> SpotReading {
+        self.read_spot(self.model.cfg.meter.spectrometer)
+    }
+
+    /// One reading of the meter's spot over [now − integration, now], with
+    /// the spectrum when `spectrum` (a spectroradiometer).
+    fn read_spot(&self, spectrum: bool) -> SpotReading {
         let m = &self.model;
         let (frames, index) = {
             let mut st = self.state();
@@ -420,11 +435,7 @@ impl SimFacility {
             + leak_weight * split.leak;
         let mut rng = Rng::new(m.cfg.seed, METER_STREAM, index);
         let factor = 1.0 + m.cfg.meter.noise * rng.normal();
-        let spectrum = m
-            .cfg
-            .meter
-            .spectrometer
-            .then(|| self.meter_spectrum(&weights, leak_weight, factor, index));
+        let spectrum = spectrum.then(|| self.meter_spectrum(&weights, leak_weight, factor, index));
         SpotReading {
             value: clean * factor,
             spectrum,
@@ -590,6 +601,27 @@ impl SpotMeter for SimMeter {
         format!(
             "simulated spot meter ({}, spot {:?} r {} px, noise {})",
             m.response, m.spot_center_px, m.spot_radius_px, m.noise
+        )
+    }
+}
+
+/// The simulated spectroradiometer (the meter's spot, always with the
+/// spectrum).
+#[derive(Clone)]
+pub struct SimSpectroradiometer {
+    facility: SimFacility,
+}
+
+impl SpotMeter for SimSpectroradiometer {
+    fn measure(&mut self) -> Result<SpotReading> {
+        Ok(self.facility.read_spot(true))
+    }
+
+    fn describe(&self) -> String {
+        let m = &self.facility.model.cfg.meter;
+        format!(
+            "simulated spectroradiometer (380-780 nm in 5 nm bins, spot {:?} r {} px)",
+            m.spot_center_px, m.spot_radius_px
         )
     }
 }
