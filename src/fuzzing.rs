@@ -93,6 +93,7 @@ impl Target {
             Target::SceneToml => vec![
                 s(SCENE_SEED.as_bytes()),
                 s(include_bytes!("../configs/moon.toml")),
+                s(relief_scene_seed().as_bytes()),
             ],
             Target::Trajectory => vec![head(include_bytes!("../configs/moon_approach.csv"), 12)],
             Target::EpochTrajectory => vec![s(EPOCH_TRAJECTORY_SEED.as_bytes())],
@@ -138,8 +139,10 @@ impl Target {
         let name = Path::new("fuzz.input");
         match self {
             Target::FacilityToml => f::config::FacilityConfig::parse(&text, name).is_ok(),
+            // The relief seed's DEM, written beside the scene.
             Target::SceneToml => {
-                crate::scene::Scene::from_toml(&text, &scratch.join("scene.toml")).is_ok()
+                write_seed_dem(scratch)
+                    && crate::scene::Scene::from_toml(&text, &scratch.join("scene.toml")).is_ok()
             }
             Target::Trajectory => f::trajectory::Trajectory::parse(&text, name).is_ok(),
             // The analytic ephemeris: the parser's checks, no kernels needed.
@@ -266,6 +269,25 @@ node_spacing = 4
 pixel_tolerance = 1.0e-3
 shadow_edges = false
 "#;
+
+/// [`SCENE_SEED`] with a relief block over a DEM written beside it
+/// ([`write_seed_dem`]): the shadows' and far limb's keys mutate too.
+fn relief_scene_seed() -> String {
+    SCENE_SEED.replacen(
+        "[state]",
+        "shadows = { dem = \"dem.tif\", scale = 1000.0, azimuths = 8, mode = \"always\", \
+         displace = true, far_limb = true, cache_dir = \"cache\" }\n\n[state]",
+        1,
+    )
+}
+
+/// Writes the relief seed's DEM (8 × 4 cells, heights 0–1.5 km) into
+/// `scratch` unless it is there.
+fn write_seed_dem(scratch: &Path) -> bool {
+    let path = scratch.join("dem.tif");
+    let heights: Vec<f32> = (0..32).map(|k| (k % 7) as f32 * 0.25).collect();
+    path.is_file() || crate::render::output::write_f32_tiff(&path, 8, 4, &heights).is_ok()
+}
 
 /// Two states of an epoch trajectory.
 const EPOCH_TRAJECTORY_SEED: &str =

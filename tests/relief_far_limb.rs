@@ -166,14 +166,33 @@ fn a_ridge_past_the_limb_rises_into_the_profile() {
     assert!(worst <= 1e-9, "a flat DEM changed a pixel by {worst:e}");
 }
 
-/// `far_limb` without `displace` is refused with a one-line error naming
-/// the key.
+/// `far_limb` is on by default with `displace` and off without it;
+/// `far_limb = true` without `displace` is refused with a one-line error
+/// naming the key, while shadows alone (or `far_limb = false`) load.
 #[test]
 fn far_limb_needs_the_displacement() {
     let dir = tempfile::tempdir().unwrap();
     let dem = dir.path().join("flat.tiff");
     optistim::render::output::write_f32_tiff(&dem, COLS, ROWS, &vec![0.0f32; COLS * ROWS]).unwrap();
     let mut setup = Setup::new("{ model = \"area\", albedo = 0.3 }", 5.0, 4.0, 50.0);
+    let far_limb_of = |setup: &mut Setup, keys: &str| {
+        setup.extra_body = format!(
+            "shadows = {{ dem = \"{}\", scale = 1.0, {keys}cache_dir = \"{}\" }}",
+            dem.display(),
+            dir.path().display()
+        );
+        let scene =
+            optistim::scene::Scene::from_toml(&setup.toml(), std::path::Path::new("t.toml"))
+                .unwrap_or_else(|e| panic!("{keys}: {e}"));
+        scene.body.relief.far_limb
+    };
+    assert!(far_limb_of(&mut setup, "displace = true, "));
+    assert!(!far_limb_of(
+        &mut setup,
+        "displace = true, far_limb = false, "
+    ));
+    assert!(!far_limb_of(&mut setup, ""));
+    assert!(!far_limb_of(&mut setup, "far_limb = false, "));
     setup.extra_body = format!(
         "shadows = {{ dem = \"{}\", scale = 1.0, far_limb = true, cache_dir = \"{}\" }}",
         dem.display(),

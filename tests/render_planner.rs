@@ -73,8 +73,9 @@ fn disk_p99(image: &[f32], truth: &[f32]) -> f64 {
 /// The relief Moon at 384 px (a pixel covers about three DEM cells):
 /// displaced, so no pixel is interior. Before the planner judged the
 /// disk, it measured an empty interior (p99 0) and kept the scene's own
-/// single cap per pixel, 29 % off; now the target must be met over the
-/// disk.
+/// single cap per pixel, 29 % off (24 % since caps are cut at occlusion
+/// edges, so the target is 20 %, below that); now the target must be met
+/// over the disk.
 #[test]
 fn where_the_caps_draw_the_disk_the_planner_judges_the_disk() {
     let path = root().join("configs/moon_relief.toml");
@@ -93,7 +94,7 @@ fn where_the_caps_draw_the_disk_the_planner_judges_the_disk() {
         );
         disk_p99(r.flux(), &truth)
     };
-    let target = 0.25;
+    let target = 0.20;
     let own = render(&scene.render);
     assert!(own > target, "the scene's own settings: disk p99 {own:.3}");
     let mut planner = Planner::new(&scene);

@@ -77,7 +77,7 @@ impl Weight {
     /// rising from zero at the terminator) the cap's flux is split over
     /// pixels along it rather than by area.
     #[inline]
-    fn radiance_shape(self, mu0: f64, mu: f64) -> f64 {
+    pub(super) fn radiance_shape(self, mu0: f64, mu: f64) -> f64 {
         let (mu0, mu) = (mu0.max(0.0), mu.max(0.0));
         match self {
             Weight::Mu0Mu => mu0,
@@ -94,6 +94,9 @@ impl Weight {
 pub struct CornerRow {
     pos: Vec<(f64, f64)>,
     shape: Vec<f64>,
+    /// Whether the camera sees each corner (only where the frame cuts
+    /// caps across occlusion edges, `render::occlusion`).
+    seen: Vec<bool>,
 }
 
 /// A rectangle of the (t, s) square still to be visited or to be cut.
@@ -444,6 +447,8 @@ impl Frame<'_> {
     fn corner_row(&self, theta: f64, s0: f64, ds: f64, n: u32, out: &mut CornerRow) {
         out.pos.clear();
         out.shape.clear();
+        out.seen.clear();
+        let cut_edges = self.cuts_occlusion_edges();
         let (st, ct) = theta.sin_cos();
         let (lo, hi) = self.lune.phi_range(st);
         let width = (hi - lo).max(0.0);
@@ -473,6 +478,9 @@ impl Frame<'_> {
             });
             let (mu0, mu) = (st * cp, st * (cp * cos_a + sp * sin_a));
             out.shape.push(self.weight.radiance_shape(mu0, mu));
+            if cut_edges {
+                out.seen.push(self.seen(DVec3::new(st * cp, st * sp, ct)));
+            }
             (sp, cp) = (sp * cd + cp * sd, cp * cd - sp * sd);
         }
     }
@@ -499,6 +507,7 @@ impl Frame<'_> {
             || self.shadows.is_some()
             || self.body.relief.albedo_tiles.is_some();
         let widened = self.lune.widened();
+        let cut_edges = self.cuts_occlusion_edges();
         let mut total = 0.0;
         let [upper, lower] = rows;
         self.corner_row(self.theta(cell.t0), cell.s0, ds, leaf.n_s, lower);
@@ -543,6 +552,32 @@ impl Frame<'_> {
                 ];
                 if sink.covers_quad(&quad) {
                     continue;
+                }
+                // Corners that disagree on being seen: an occlusion edge
+                // crosses the cap (`render::occlusion`).
+                if cut_edges {
+                    let seen = [
+                        upper.seen[b],
+                        upper.seen[b + 1],
+                        lower.seen[b + 1],
+                        lower.seen[b],
+                    ];
+                    if seen.iter().any(|&v| v != seen[0]) {
+                        let corners = std::array::from_fn(|k| super::occlusion::EdgePoint {
+                            pos: quad[k],
+                            shape: shape[k],
+                            seen: seen[k],
+                        });
+                        let s_lo = cell.s0 + b as f64 * ds;
+                        total += self.grid_edge_cap(
+                            sink,
+                            (theta0, theta1),
+                            (s_lo, s_lo + ds),
+                            corners,
+                            0,
+                        );
+                        continue;
+                    }
                 }
                 // Far-field cosines and the closed-form weight of the cap.
                 let cos_pa = cp * cos_a + sp * sin_a;
@@ -622,6 +657,39 @@ impl Frame<'_> {
         total - std::mem::take(&mut sink.skipped)
     }
 
+    /// Unit normal (Lester coordinates) of the displaced bilinear surface
+    /// at the body-fixed direction `n_body`, where its radius is `r`
+    /// ([`crate::scene::surface::surface_normal_tiled`]); the sphere's
+    /// without a displacement.
+    #[inline]
+    pub(super) fn surface_normal_local(&self, n_body: DVec3, r: f64) -> DVec3 {
+        let [xb, yb, zb] = self.axes_body;
+        let n = match self.height {
+            Some(h) => crate::scene::surface::surface_normal_tiled(
+                &h.0,
+                self.body.relief.height_tiles.as_deref(),
+                self.radius,
+                n_body,
+                r,
+            ),
+            None => n_body,
+        };
+        DVec3::new(n.dot(xb), n.dot(yb), n.dot(zb))
+    }
+
+    /// The albedo at the body-fixed direction `n_body`: the map's point
+    /// value (or the model's albedo), with the albedo tiles blended over.
+    pub(super) fn point_albedo(&self, n_body: DVec3) -> f64 {
+        let albedo = match &self.body.albedo_map {
+            None => self.albedo,
+            Some(map) => map.sample_dir(n_body) * self.map_scale,
+        };
+        match self.body.relief.albedo_tiles.as_deref() {
+            Some(t) if t.covers_dir(n_body) => t.albedo_dir(n_body, self.map_scale, albedo),
+            _ => albedo,
+        }
+    }
+
     /// The model's radiance factor at the body-fixed direction `n_body`:
     /// with the model's own parameters, or those the body's parameter maps
     /// give there.
@@ -690,7 +758,47 @@ impl Frame<'_> {
             return self.reflect(model, &g, albedo, n_body) * (AU * AU / sun_sq) * mu / cam_sq
                 * shadow;
         }
-        self.relief_integrand(n_local, n_body, cam_local, d_sun, r, model, albedo)
+        self.relief_integrand(n_local, n_body, cam_local, d_sun, r, model, albedo, false)
+    }
+
+    /// [`Frame::integrand`] of a part of a cap cut at an occlusion edge
+    /// (`render::occlusion`): with a displacement, the projected area is
+    /// the bilinear surface's at the centre. A part is far smaller than a
+    /// DEM cell and sits at a fold, where the smooth slope maps can face
+    /// the camera while the surface its footprint lies on does not.
+    pub(super) fn part_integrand(&self, n_local: DVec3, n_body: DVec3, albedo: f64) -> f64 {
+        let (sin_a, cos_a) = self.lune.alpha.sin_cos();
+        let (mu0_far, mu_far) = (n_local.x, n_local.x * cos_a + n_local.y * sin_a);
+        let (cam_local, d_cam, d_sun) = (
+            self.lune.camera_local(),
+            self.lune.camera_range,
+            self.lune.sun_range,
+        );
+        if self.height.is_none() {
+            return self.integrand(
+                n_local,
+                n_body,
+                albedo,
+                mu0_far,
+                mu_far,
+                cos_a,
+                cam_local,
+                d_cam,
+                d_sun,
+                self.radius,
+                self.model,
+            );
+        }
+        self.relief_integrand(
+            n_local,
+            n_body,
+            cam_local,
+            d_sun,
+            self.radius,
+            self.model,
+            albedo,
+            true,
+        )
     }
 
     /// Share of the solar disk lighting a point (Lester coordinates).
@@ -744,6 +852,7 @@ impl Frame<'_> {
         radius: f64,
         model: &Reflectance,
         albedo: f64,
+        surface_area: bool,
     ) -> f64 {
         let (r, geometric) = match self.height {
             Some(h) => crate::scene::surface::displaced_tiled(
@@ -778,7 +887,12 @@ impl Frame<'_> {
         if g.mu0 <= 0.0 || g.mu <= 0.0 {
             return 0.0;
         }
-        let projected = geometric.dot(v) / geometric.dot(n_local).max(1e-6);
+        let area_normal = if surface_area {
+            self.surface_normal_local(n_body, r)
+        } else {
+            geometric
+        };
+        let projected = area_normal.dot(v) / area_normal.dot(n_local).max(1e-6);
         if projected <= 0.0 {
             return 0.0;
         }
@@ -802,7 +916,7 @@ impl Frame<'_> {
     /// confirms what the map hides. The flat sphere's points are hidden by
     /// nothing.
     #[inline]
-    fn camera_visible(&self, n_body: DVec3, cam: DVec3, r: f64) -> f64 {
+    pub(super) fn camera_visible(&self, n_body: DVec3, cam: DVec3, r: f64) -> f64 {
         let Some(height) = self.height else {
             return 1.0;
         };
@@ -1370,7 +1484,7 @@ pub struct Sink<'a> {
 
 /// Where gridding puts a cap's value: the frame ([`Sink`]) or one cap's
 /// pixel shares ([`Shares`]).
-trait PixelAdd {
+pub(super) trait PixelAdd {
     fn add(&mut self, i: i64, j: i64, value: f64);
 }
 
@@ -1504,7 +1618,7 @@ impl Sink<'_> {
 
 /// Bounding box (x0, y0, x1, y1) of a projected footprint.
 #[inline]
-fn bounds(quad: &[(f64, f64); 4]) -> (f64, f64, f64, f64) {
+pub(super) fn bounds(quad: &[(f64, f64); 4]) -> (f64, f64, f64, f64) {
     // Plain comparisons (one instruction each, not NaN-aware min/max):
     // callers pass finite corners.
     let lo = |a: f64, b: f64| if b < a { b } else { a };
@@ -1531,7 +1645,7 @@ const SHAPE_FLAT: f64 = 1e-2;
 /// footprint, from the part's area and first moment. Elsewhere the shape
 /// is flat and this is [`grid_quad`].
 #[inline]
-fn grid_quad_shaped(
+pub(super) fn grid_quad_shaped(
     sink: &mut impl PixelAdd,
     quad: &[(f64, f64); 4],
     shape: &[f64; 4],

@@ -19,6 +19,7 @@ pub mod detector;
 pub mod field;
 pub mod interior;
 pub mod lune;
+pub mod occlusion;
 pub mod output;
 mod polar_sun;
 pub mod relief;

@@ -520,9 +520,10 @@ pub struct ShadowsSpec {
     /// its slopes tilt the normals.
     #[serde(default)]
     pub displace: bool,
-    /// With `displace`: terrain past the sphere's limb rises into view.
-    #[serde(default)]
-    pub far_limb: bool,
+    /// With `displace`: terrain past the sphere's limb rises into view
+    /// (default: on with `displace`; `true` without it is an error).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub far_limb: Option<bool>,
 }
 
 impl ShadowsSpec {
@@ -536,7 +537,7 @@ impl ShadowsSpec {
             cache_dir: None,
             mode,
             displace,
-            far_limb: false,
+            far_limb: None,
         }
     }
 }
@@ -559,7 +560,7 @@ impl Relief {
         base: &Path,
         radius: f64,
     ) -> Result<Relief> {
-        if spec.far_limb && !spec.displace {
+        if spec.far_limb == Some(true) && !spec.displace {
             return Err(Error::invalid(
                 "body.shadows.far_limb",
                 "needs `displace = true` (the far limb is the displacement's)",
@@ -571,7 +572,7 @@ impl Relief {
             ..Relief::default()
         };
         if spec.displace {
-            relief.far_limb = spec.far_limb;
+            relief.far_limb = spec.far_limb.unwrap_or(true);
             relief.set_height(dem);
             if let Some(set) = tiles {
                 relief.set_height_tiles(std::sync::Arc::new(set));

@@ -82,6 +82,43 @@ fn normal_of(
     (r, (n - north * g_north - east * g_east).normalize())
 }
 
+/// Half-step [rad] of the central differences of [`surface_normal_tiled`]:
+/// far below any DEM cell, far above f64 rounding of the heights.
+const SURFACE_STEP: f64 = 1e-7;
+
+/// Unit normal at `n` of the bilinear surface r(n) = R + h(n) itself, the
+/// surface the caps' corners and the limb sit on (`r` its radius there):
+/// central differences of its height over ±[`SURFACE_STEP`], exact inside
+/// a DEM cell, where the bilinear height is linear along each axis. The
+/// slope maps' normal ([`displaced_tiled`], central differences between
+/// cells, interpolated) is smooth instead; seen at a grazing angle the two
+/// give projected areas tens of per cent apart (`render::occlusion`).
+#[inline]
+pub fn surface_normal_tiled(
+    height: &EquirectMap,
+    tiles: Option<&HeightTiles>,
+    radius: f64,
+    n: DVec3,
+    r: f64,
+) -> DVec3 {
+    let (lat, lon) = super::maps::lat_lon(n);
+    let h = |la: f64, lo: f64| height_at(height, tiles, la, lo);
+    let d = SURFACE_STEP;
+    let d_lat = (h(lat + d, lon) - h(lat - d, lon)) / (2.0 * d);
+    let d_lon = (h(lat, lon + d) - h(lat, lon - d)) / (2.0 * d);
+    normal_of((r - radius, d_lat, d_lon), radius, n, lat, lon).1
+}
+
+/// Height [m] at (`lat`, `lon`): the tiles' where they cover it, else the
+/// global DEM's (as [`displaced_radius_tiled`]).
+#[inline]
+fn height_at(height: &EquirectMap, tiles: Option<&HeightTiles>, lat: f64, lon: f64) -> f64 {
+    match tiles {
+        Some(t) if t.covers(lat, lon) => t.height(lat, lon, &|| height.sample(lat, lon)),
+        _ => height.sample(lat, lon),
+    }
+}
+
 /// Local radius [m] alone (the limb needs no normal).
 #[inline]
 pub fn displaced_radius(height: &EquirectMap, radius: f64, n: DVec3) -> f64 {
