@@ -271,7 +271,16 @@ impl Sensor {
     /// Frame `frame` of an exposure `exposure` [s] of a scene giving
     /// `rate` [e⁻/s] per pixel (row-major, before PRNU).
     pub fn expose(&self, rate: &[f32], exposure: f64, frame: u64) -> SensorFrame {
+        let mut dn = vec![0u16; rate.len()];
+        let saturated = self.expose_into(rate, exposure, frame, &mut dn);
+        SensorFrame { dn, saturated }
+    }
+
+    /// [`Sensor::expose`] written over `dn` (every pixel: a render reuses
+    /// its frame), returning the saturated pixels' count.
+    pub fn expose_into(&self, rate: &[f32], exposure: f64, frame: u64, dn: &mut [u16]) -> u64 {
         assert_eq!(rate.len(), self.width * self.height, "rate image size");
+        assert_eq!(dn.len(), rate.len(), "frame size");
         let w = self.width;
         let stream = Stream::new(self.params.seed, FRAME_STREAM + frame);
         // Each row's span from its first to its last lit pixel.
@@ -295,7 +304,6 @@ impl Sensor {
         let table = self.dark_table(exposure, &draw.rows);
         let dark = (*table).as_ref().map(|t| DarkLookup::new(t, self, frame));
         let smeared = runs(&draw.smear);
-        let mut dn = vec![0u16; rate.len()];
         let r = &self.readout;
         // The saturation level is a whole DN in [0, max_dn] (offset ≥ 0).
         let sat_dn = quantise(self.params.offset + r.gain * self.full_scale, r.max_dn()) as u32;
@@ -325,10 +333,10 @@ impl Sensor {
         over.sort_unstable();
         over.dedup();
         if !over.is_empty() {
-            self.bloom_columns(&over, rate, &draw, &mut dn);
+            self.bloom_columns(&over, rate, &draw, dn);
             saturated = dn.par_chunks(w).map(saturated_in).sum();
         }
-        SensorFrame { dn, saturated }
+        saturated
     }
 
     /// The table of this exposure's dark pixels, when one applies: read
