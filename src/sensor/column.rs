@@ -3,10 +3,10 @@
 //!
 //! Smear is charge a packet collects in the photosites it crosses during
 //! the transfer, so it is the same mean s_c for every pixel of column c;
-//! a pixel there without light of its own (rate 0) holds Poisson(d + s_c)
-//! + DSNU_k: one distribution per column. [`PoissonTable`] holds its CDF
-//! with 32-bit steps and a guide table (Chen and Asau), so a draw is one
-//! lookup and about one comparison, where Ahrens and Dieter's PD
+//! a pixel there without light of its own (rate 0) holds DSNU_k plus
+//! Poisson(d + s_c): one distribution per column. [`PoissonTable`] holds
+//! its CDF with 32-bit steps and a guide table (Chen and Asau), so a draw
+//! is one lookup and about one comparison, where Ahrens and Dieter's PD
 //! (the lit pixels' draw, [`super::sampler`]) takes a normal, a square
 //! root and its acceptance tests. A column gets a table only when its
 //! mean is at most [`MAX_MEAN`] and more of its pixels draw from it than
