@@ -7,7 +7,9 @@
 //! which shows the test can tell.
 
 use optistim::sensor::rng::Stream;
-use optistim::sensor::sampler::{normal_of_bits, poisson, poisson_inverse, uniform_of_bits};
+use optistim::sensor::sampler::{
+    normal_of_bits, poisson, poisson_inverse, poisson_of_hash, uniform_of_bits,
+};
 
 /// Φ(z) = erfc(−z/√2)/2.
 fn phi(z: f64) -> f64 {
@@ -109,6 +111,19 @@ fn draws(mean: f64, seed: u64, case: u64, n: usize) -> Vec<f64> {
         .collect()
 }
 
+/// [`draws`] as the sensor wires them now: one hash per pixel, 48 of its
+/// bits to the draw ([`poisson_of_hash`]), its generator for PD's rare
+/// steps.
+fn draws_of_hash(mean: f64, seed: u64, case: u64, n: usize) -> Vec<f64> {
+    let stream = Stream::new(seed, (1 << 32) + 100 + case);
+    (0..n as u64)
+        .map(|k| {
+            let mut more = stream.at(k);
+            poisson_of_hash(mean, stream.bits(k), || more.uniform(), || (-mean).exp())
+        })
+        .collect()
+}
+
 fn histogram(values: &[f64], bins: usize) -> Vec<f64> {
     let mut counts = vec![0.0; bins + 1];
     for &v in values {
@@ -120,6 +135,16 @@ fn histogram(values: &[f64], bins: usize) -> Vec<f64> {
 
 #[test]
 fn poisson_draws_follow_the_pmf_at_every_mean() {
+    check_draws(draws);
+}
+
+#[test]
+fn one_hash_poisson_draws_follow_the_pmf_at_every_mean() {
+    check_draws(draws_of_hash);
+}
+
+/// The draws of `draw` (mean, seed, case, n) against the pmf.
+fn check_draws(draw: fn(f64, u64, u64, usize) -> Vec<f64>) {
     let n = 200_000;
     for (case, mean) in [0.5, 5.0, 9.99, 10.0, 30.0, 1e3, 1e5]
         .into_iter()
@@ -128,7 +153,7 @@ fn poisson_draws_follow_the_pmf_at_every_mean() {
         let last = (mean + 12.0 * f64::sqrt(mean) + 30.0) as usize;
         let pmf = poisson_pmf(mean, last);
         for seed in [1u64, 2, 3] {
-            let x = draws(mean, seed, case as u64, n);
+            let x = draw(mean, seed, case as u64, n);
             let (chi2, df, ks) = fit(&histogram(&x, last + 1), &pmf, n as f64);
             assert!(
                 chi2 < chi2_limit(df),

@@ -164,10 +164,20 @@ impl Kernel {
         width: usize,
         height: usize,
     ) -> (Vec<f32>, Option<[usize; 4]>) {
-        let mut out = vec![0.0f32; image.len()];
-        let Some(b) = nonzero_box(image, width) else {
-            return (out, None);
-        };
+        let mut out = image.to_vec();
+        let area = self.convolve_in_place(&mut out, width, height);
+        (out, area)
+    }
+
+    /// [`Kernel::convolve_in_box`] writing the result over `image` (no
+    /// new frame: outside the box it computes the image is 0 already).
+    pub fn convolve_in_place(
+        &self,
+        image: &mut [f32],
+        width: usize,
+        height: usize,
+    ) -> Option<[usize; 4]> {
+        let b = nonzero_box(image, width)?;
         let grow = |lo: usize, hi: usize, n: usize| {
             (lo.saturating_sub(self.half), (hi + self.half).min(n))
         };
@@ -187,9 +197,9 @@ impl Kernel {
             self.convolve_fft(&crop, cw, ch)
         };
         for (y, row) in blurred.chunks(cw).enumerate() {
-            out[(y0 + y) * width + x0..][..cw].copy_from_slice(row);
+            image[(y0 + y) * width + x0..][..cw].copy_from_slice(row);
         }
-        (out, Some([x0, x1, y0, y1]))
+        Some([x0, x1, y0, y1])
     }
 
     /// The kernel's quadrant w[dy][dx] (dy, dx in 0..=half, row-major),

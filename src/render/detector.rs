@@ -313,8 +313,7 @@ impl Spectral {
         height: usize,
         omega: &[f32],
     ) {
-        let (rate, rate_box) = kernel.convolve_in_box(&self.electron_rate, width, height);
-        self.electron_rate = rate;
+        let rate_box = kernel.convolve_in_place(&mut self.electron_rate, width, height);
         let (power, scale, area) = match self.radiance_per_rate {
             Some(ratio) => (&self.electron_rate, ratio, rate_box),
             None => {
@@ -511,10 +510,10 @@ fn apply_sensor(scene: &Scene, params: SensorParams, d: &mut Detected) -> Sensor
     let cam = &scene.camera;
     let pin = &cam.pinhole;
     let sensor = Sensor::shared(params, cam.readout(), pin.width, pin.height);
-    let frame = sensor.expose(&d.electron_rate, cam.exposure, cam.sensor_frame);
-    d.peak_dn = frame.dn.iter().copied().max().unwrap_or(0) as u32;
-    d.saturated = frame.saturated;
-    d.dn = frame.dn;
+    // The ideal detector's frame is written over: no new frame.
+    d.dn.resize(d.electron_rate.len(), 0);
+    d.saturated = sensor.expose_into(&d.electron_rate, cam.exposure, cam.sensor_frame, &mut d.dn);
+    d.peak_dn = d.dn.iter().copied().max().unwrap_or(0) as u32;
     SensorSummary {
         params,
         frame: cam.sensor_frame,

@@ -82,6 +82,18 @@ impl DarkTable {
     }
 }
 
+/// N(0, 1) as [`LEVELS`] equally likely cells, each the normal's mean over
+/// its cell (the table of Poisson(0) + N(0, 1)): the lit pixels' read
+/// noise is σ times a cell drawn with 16 random bits, as the dark pixels'
+/// is inside their table. Built once per process.
+pub fn standard_normal_cells() -> &'static [f32] {
+    static CELLS: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
+    CELLS.get_or_init(|| match DarkTable::new(0.0, 1.0) {
+        Some(t) => t.values.iter().map(|&v| v as f32).collect(),
+        None => unreachable!("σ = 1 always has a table"),
+    })
+}
+
 /// The Poisson pmf over the span holding all but ~1e-16 of it.
 struct PoissonSpan {
     first: usize,

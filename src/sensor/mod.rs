@@ -3,9 +3,10 @@
 //! seeded per-pixel PRNU and DSNU maps, and the order the effects apply in
 //! (the EMVA 1288 reference simulator's):
 //!
-//! 1. light mean μ_k = PRNU_k · (rate_k · t + smear_k), smear_k =
-//!    `transfer_time` / height · Σ_column rate (frame transfer: every pixel
-//!    crosses its whole column while the shutter is open);
+//! 1. light mean μ_k = PRNU_k · rate_k · t + smear_c, smear_c =
+//!    `transfer_time` / height · Σ_column PRNU · rate (frame transfer: every
+//!    pixel's charge crosses its whole column while the shutter is open,
+//!    collecting in each photosite it passes);
 //! 2. charge q_k = Poisson(dark_current · t) + Poisson(μ_k) + DSNU_k (one
 //!    Poisson draw of the summed mean: the same distribution);
 //! 3. optional blooming: charge above the full well spills along the
@@ -40,7 +41,13 @@
 //! it like DSNU. The table applies when σ_read > 0, shot noise is on, β is
 //! 0 and no dark pixel can reach the full well; other pixels are drawn one
 //! by one as above.
+//!
+//! A pixel whose only light is its column's smear (rate 0 in a smeared
+//! column) draws Poisson(d + smear_c) by inversion of its column's table
+//! ([`column::PoissonTable`], when the column has one) with 32 bits of its
+//! hash, and its read noise from 16 others as a lit pixel does.
 
+pub mod column;
 pub mod dark;
 pub mod extras;
 pub mod rng;
@@ -264,30 +271,43 @@ impl Sensor {
     /// Frame `frame` of an exposure `exposure` [s] of a scene giving
     /// `rate` [e⁻/s] per pixel (row-major, before PRNU).
     pub fn expose(&self, rate: &[f32], exposure: f64, frame: u64) -> SensorFrame {
+        let mut dn = vec![0u16; rate.len()];
+        let saturated = self.expose_into(rate, exposure, frame, &mut dn);
+        SensorFrame { dn, saturated }
+    }
+
+    /// [`Sensor::expose`] written over `dn` (every pixel: a render reuses
+    /// its frame), returning the saturated pixels' count.
+    pub fn expose_into(&self, rate: &[f32], exposure: f64, frame: u64, dn: &mut [u16]) -> u64 {
         assert_eq!(rate.len(), self.width * self.height, "rate image size");
+        assert_eq!(dn.len(), rate.len(), "frame size");
         let w = self.width;
         let stream = Stream::new(self.params.seed, FRAME_STREAM + frame);
         // Each row's span from its first to its last lit pixel.
         let spans: Vec<Option<(usize, usize)>> = rate.par_chunks(w).map(lit_span).collect();
+        let smear = self.smear_in(rate, &spans);
+        let dark_mean = self.params.dark_current * exposure;
+        let columns = if self.params.shot_noise {
+            column::column_tables(dark_mean, &smear, &self.unlit_counts(&spans))
+        } else {
+            vec![None; w]
+        };
         let draw = Draw {
-            smear: self.smear_in(rate, &spans),
-            dark: DarkDraw::new(self.params.dark_current * exposure),
+            smear,
+            columns,
+            dark: DarkDraw::new(dark_mean),
             exposure,
             rows: extras::row_offsets(&stream, rate.len(), self.height, self.params.row_noise),
             stream,
+            normal_cells: dark::standard_normal_cells(),
         };
-        let full_well = self.readout.full_well;
-        let bloom = self.params.blooming;
         let table = self.dark_table(exposure, &draw.rows);
         let dark = (*table).as_ref().map(|t| DarkLookup::new(t, self, frame));
         let smeared = runs(&draw.smear);
-        let mut dn = vec![0u16; rate.len()];
         let r = &self.readout;
         // The saturation level is a whole DN in [0, max_dn] (offset ≥ 0).
-        let sat_dn = (self.params.offset + r.gain * self.full_scale)
-            .round()
-            .min(r.max_dn()) as u32;
-        let saturated_in = |row: &[u16]| row.iter().filter(|&&v| v as u32 >= sat_dn).count() as u64;
+        let sat_dn = quantise(self.params.offset + r.gain * self.full_scale, r.max_dn()) as u32;
+        let saturated_in = |row: &[u16]| count_at_least(row, sat_dn);
         // One pass draws and digitises every pixel, counts the saturated
         // ones while the row is in cache and notes the columns holding
         // charge over the full well; only those are bloomed. The runs of
@@ -303,15 +323,7 @@ impl Sensor {
                         let dsnu = &self.dsnu[j * w + a..][..b - a];
                         dark.fill(&mut row[a..b], j * w + a, dsnu, draw.rows[j] as f32)
                     }
-                    _ => {
-                        for (i, out) in row.iter_mut().enumerate().take(b).skip(a) {
-                            let (q, r) = self.collect(rate, &draw, i, j * w + i);
-                            if bloom && q > full_well {
-                                over.push(i);
-                            }
-                            *out = self.digitise(q, r + draw.rows[j]);
-                        }
-                    }
+                    _ => self.draw_run(rate, &draw, j, a, &mut row[a..b], &mut over),
                 });
                 (over, saturated_in(row))
             })
@@ -321,10 +333,10 @@ impl Sensor {
         over.sort_unstable();
         over.dedup();
         if !over.is_empty() {
-            self.bloom_columns(&over, rate, &draw, &mut dn);
+            self.bloom_columns(&over, rate, &draw, dn);
             saturated = dn.par_chunks(w).map(saturated_in).sum();
         }
-        SensorFrame { dn, saturated }
+        saturated
     }
 
     /// The table of this exposure's dark pixels, when one applies: read
@@ -372,30 +384,83 @@ impl Sensor {
         }
     }
 
+    /// Steps 1–5 for the pixels `out` of row `j` from column `a` on,
+    /// each drawn as [`Sensor::collect`]; the columns holding charge over
+    /// the full well go to `over` when blooming is on.
+    fn draw_run(
+        &self,
+        rate: &[f32],
+        draw: &Draw,
+        j: usize,
+        a: usize,
+        out: &mut [u16],
+        over: &mut Vec<usize>,
+    ) {
+        let (n, k0) = (out.len(), j * self.width + a);
+        let maps = rate[k0..k0 + n]
+            .iter()
+            .zip(&self.prnu[k0..k0 + n])
+            .zip(&self.dsnu[k0..k0 + n])
+            .zip(&draw.smear[a..a + n]);
+        let (bloom, full_well, row) = (self.params.blooming, self.readout.full_well, draw.rows[j]);
+        for (x, (o, (((&r, &g), &d), &s))) in out.iter_mut().zip(maps).enumerate() {
+            let (q, noise) = self.charge(draw, r, g, d, s, a + x, (k0 + x) as u64);
+            if bloom && q > full_well {
+                over.push(a + x);
+            }
+            *o = self.digitise(q, noise + row);
+        }
+    }
+
     /// Steps 1, 2 and the draw of 4 for pixel `k` (in column `column`):
-    /// its charge (light and dark electrons, one exact Poisson draw of
-    /// their summed mean, plus DSNU) and its read noise [e⁻]. One 64-bit
-    /// hash gives 32 bits to the Poisson draw (its normal, or its uniform
-    /// below [`sampler::PD_MEAN`]) and 32 to the read noise (normal tails
-    /// to 6.2 σ); PD's further uniforms come from the pixel's generator.
+    /// [`Sensor::charge`] of its maps' values.
     #[inline]
     fn collect(&self, rate: &[f32], draw: &Draw, column: usize, k: usize) -> (f64, f64) {
-        let smear = draw.smear[column];
-        let light = self.prnu[k] as f64 * (rate[k] as f64 * draw.exposure + smear);
-        let bits = draw.stream.bits(k as u64);
-        let (high, low) = ((bits >> 32) as u32, bits as u32);
-        let read = self.params.read_noise * sampler::normal_of_bits(low);
+        let (r, g, d) = (rate[k], self.prnu[k], self.dsnu[k]);
+        self.charge(draw, r, g, d, draw.smear[column], column, k as u64)
+    }
+
+    /// Steps 1, 2 and the draw of 4 for pixel `k` (in column `column`) of
+    /// rate `rate`, PRNU `prnu`, DSNU `dsnu` and smear `smear`: its charge
+    /// (light and dark electrons, one exact Poisson draw of their summed
+    /// mean, plus DSNU) and its read noise [e⁻]. One 64-bit hash gives 48
+    /// bits to the Poisson draw (32 to the column's table for a pixel lit
+    /// by smear alone, else [`sampler::poisson_of_hash`]) and 16 to the read
+    /// noise, σ times a cell of [`dark::standard_normal_cells`]; only PD's
+    /// rare steps Q and E hash again, from the pixel's generator.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn charge(
+        &self,
+        draw: &Draw,
+        rate: f32,
+        prnu: f32,
+        dsnu: f32,
+        smear: f64,
+        column: usize,
+        k: u64,
+    ) -> (f64, f64) {
+        let bits = draw.stream.bits(k);
+        let read = self.params.read_noise * draw.normal_cells[(bits & 0xffff) as usize] as f64;
+        if rate == 0.0 {
+            if let Some(table) = &draw.columns[column] {
+                let electrons = table.draw(column::table_bits(bits));
+                return (electrons + dsnu as f64, read);
+            }
+        }
+        let light = prnu as f64 * rate as f64 * draw.exposure + smear;
         if !self.params.shot_noise {
-            return (draw.dark.mean + light + self.dsnu[k] as f64, read);
+            return (draw.dark.mean + light + dsnu as f64, read);
         }
         let mean = draw.dark.mean + light;
-        let mut more = draw.stream.at(k as u64);
+        let mut more = draw.stream.at(k);
+        let more = || more.uniform();
         let electrons = match draw.dark.limit {
             // e^(−mean) once per frame for a dark pixel.
-            Some(limit) if light == 0.0 => sampler::poisson(mean, high, &mut more, || limit),
-            _ => sampler::poisson(mean, high, &mut more, || (-mean).exp()),
+            Some(limit) if light == 0.0 => sampler::poisson_of_hash(mean, bits, more, || limit),
+            _ => sampler::poisson_of_hash(mean, bits, more, || (-mean).exp()),
         };
-        (electrons + self.dsnu[k] as f64, read)
+        (electrons + dsnu as f64, read)
     }
 
     /// Step 5 on charge `charge` and read (and row) noise `noise` [e⁻]:
@@ -404,14 +469,16 @@ impl Sensor {
     fn digitise(&self, charge: f64, noise: f64) -> u16 {
         let r = &self.readout;
         let electrons = extras::response(charge, self.params.nonlinearity, r.full_well) + noise;
-        // max/min, not clamp: no range assertion per pixel.
-        (self.params.offset + r.gain * electrons.min(self.full_scale))
-            .round()
-            .max(0.0)
-            .min(self.max_dn.min(u16::MAX as f64)) as u16
+        // Not `min`: a plain compare (a NaN charge reads as full scale).
+        let clipped = if electrons < self.full_scale {
+            electrons
+        } else {
+            self.full_scale
+        };
+        quantise(self.params.offset + r.gain * clipped, self.max_dn)
     }
 
-    /// Smear electrons per column: transfer_time / height · Σ_column rate.
+    /// Smear electrons per column: transfer_time / height · Σ_column PRNU · rate.
     #[cfg(test)]
     fn smear(&self, rate: &[f32]) -> Vec<f64> {
         let spans: Vec<_> = rate.chunks(self.width).map(lit_span).collect();
@@ -427,20 +494,39 @@ impl Sensor {
         }
         let per_row = self.params.transfer_time / h as f64;
         let mut sums = vec![0.0f64; w];
-        for (row, span) in rate.chunks(w).zip(spans) {
+        for ((row, prnu), span) in rate.chunks(w).zip(self.prnu.chunks(w)).zip(spans) {
             if let Some((a, b)) = *span {
-                for (s, &r) in sums[a..b].iter_mut().zip(&row[a..b]) {
-                    *s += r as f64;
+                for ((s, &r), &g) in sums[a..b].iter_mut().zip(&row[a..b]).zip(&prnu[a..b]) {
+                    *s += g as f64 * r as f64;
                 }
             }
         }
         sums.iter().map(|s| s * per_row).collect()
     }
+
+    /// Per column, the rows outside their lit span `spans[row]`: how many
+    /// of its pixels a column table would draw (at least).
+    fn unlit_counts(&self, spans: &[Option<(usize, usize)>]) -> Vec<usize> {
+        // Rows covering each column, by differences along the row.
+        let mut steps = vec![0isize; self.width + 1];
+        for &(a, b) in spans.iter().flatten() {
+            steps[a] += 1;
+            steps[b] -= 1;
+        }
+        let mut covered = 0isize;
+        steps[..self.width]
+            .iter()
+            .map(|d| {
+                covered += d;
+                self.height - covered as usize
+            })
+            .collect()
+    }
 }
 
 /// A frame's dark pixels: their table in DN and their random bits.
 struct DarkLookup {
-    /// round(offset + K · value) before rounding, per table cell [DN].
+    /// offset + K · value + ½ per table cell [DN] (⌊·⌋ of it rounds).
     dn: Vec<f32>,
     /// K [DN/e⁻], for the DSNU.
     gain: f32,
@@ -455,7 +541,7 @@ impl DarkLookup {
             dn: table
                 .values
                 .iter()
-                .map(|&y| (offset + k * y) as f32)
+                .map(|&y| (offset + k * y + 0.5) as f32)
                 .collect(),
             gain: k as f32,
             max_dn: sensor.max_dn.min(u16::MAX as f64) as f32,
@@ -495,9 +581,33 @@ impl DarkLookup {
     #[inline]
     fn level(&self, bits: u64, lane: usize, shift: f32) -> u16 {
         let cell = (bits >> (16 * lane)) as u16;
+        // The table holds its DN plus ½: ⌊v⌋ rounds (see `quantise`).
         let v = self.dn[cell as usize] + self.gain * shift;
-        v.round().max(0.0).min(self.max_dn) as u16
+        let v = if v > 0.0 { v } else { 0.0 };
+        let v = if v < self.max_dn { v } else { self.max_dn };
+        v as i32 as u16
     }
+}
+
+/// ⌊`y` + ½⌋ within [0, min(`max_dn`, 65535)]: rounding (half up; `round`
+/// differs only on negative ties, which clip to 0 anyway) by compares
+/// and a truncation, no range checks per pixel (a NaN gives 0).
+#[inline(always)]
+fn quantise(y: f64, max_dn: f64) -> u16 {
+    let top = max_dn.min(u16::MAX as f64) + 0.5;
+    let z = y + 0.5;
+    let z = if z > 0.0 { z } else { 0.0 };
+    let z = if z < top { z } else { top };
+    z as i32 as u16
+}
+
+/// How many of `row` are at least `level`.
+fn count_at_least(row: &[u16], level: u32) -> u64 {
+    if level > u16::MAX as u32 {
+        return 0;
+    }
+    let level = level as u16;
+    row.iter().map(|&v| (v >= level) as u64).sum()
 }
 
 /// The runs [a, b) of non-zero values.
@@ -566,12 +676,16 @@ fn for_segments(
 struct Draw {
     /// Smear electrons per column.
     smear: Vec<f64>,
+    /// Per column, the inversion table of its pixels lit by smear alone.
+    columns: Vec<Option<column::PoissonTable>>,
     dark: DarkDraw,
     exposure: f64,
     /// The frame's random stream: pixel k draws from `stream.at(k)`.
     stream: Stream,
     /// Row offsets [e⁻] ([`extras::row_offsets`]).
     rows: Vec<f64>,
+    /// The read noise's N(0, 1) in 2¹⁶ cells.
+    normal_cells: &'static [f32],
 }
 
 /// The dark charge's mean over one exposure and, below

@@ -1,8 +1,9 @@
 //! The lit pixels' draws from raw random bits: a standard normal from 32
 //! bits by one table lookup without branches, and an exact Poisson draw
 //! at any mean (inversion below [`PD_MEAN`], Ahrens and Dieter's
-//! algorithm PD above). A lit pixel takes one or two 64-bit hashes, so
-//! these are the sensor chain's inner loop.
+//! algorithm PD above). A lit pixel takes one 64-bit hash
+//! ([`poisson_of_hash`]; a second only for PD's rare steps), so these are
+//! the sensor chain's inner loop.
 //!
 //! PD (Ahrens & Dieter 1982, ACM TOMS 8, 163–179) draws K = ⌊μ + √μ T⌋
 //! from a normal T and accepts it at once when K ≥ ⌊μ − 1.1484⌋ or, with
@@ -91,6 +92,29 @@ pub fn poisson(mean: f64, bits: u32, more: &mut Rng, p0: impl FnOnce() -> f64) -
         poisson_pd(mean, normal_of_bits(bits), u, || more.uniform())
     } else {
         poisson_inverse(uniform_of_bits(bits), mean, p0)
+    }
+}
+
+/// Poisson(`mean`), any mean ≥ 0, from one 64-bit hash `bits`: its top
+/// 24 bits give PD's normal (to ±5.4; or, below [`PD_MEAN`], the uniform
+/// inverted), bits 16 to 39 PD's step-S uniform; the low 16 bits are left
+/// to the caller (the sensor's read noise). `more` gives the rare steps
+/// Q and E their uniforms; `p0()` is e^(−mean), asked for only below
+/// [`PD_MEAN`].
+#[inline]
+pub fn poisson_of_hash(
+    mean: f64,
+    bits: u64,
+    more: impl FnMut() -> f64,
+    p0: impl FnOnce() -> f64,
+) -> f64 {
+    // The middle of the 24-bit cell as a 32-bit pattern.
+    let top = (((bits >> 40) as u32) << 8) | 0x80;
+    if mean >= PD_MEAN {
+        let u = (((bits >> 16) & 0xff_ffff) as f64 + 0.5) * (1.0 / (1u32 << 24) as f64);
+        poisson_pd(mean, normal_of_bits(top), u, more)
+    } else {
+        poisson_inverse(uniform_of_bits(top), mean, p0)
     }
 }
 
