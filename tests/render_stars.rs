@@ -195,6 +195,18 @@ fn a_star_gives_its_electrons_within_one_percent() {
     }
 }
 
+/// Intensity-weighted centroid [px, centres at +0.5] of a `width`-wide image.
+fn centroid_of(image: &[f32], width: usize) -> (f64, f64) {
+    let (mut sum, mut su, mut sv) = (0.0, 0.0, 0.0);
+    for (k, &x) in image.iter().enumerate() {
+        let x = x as f64;
+        sum += x;
+        su += x * ((k % width) as f64 + 0.5);
+        sv += x * ((k / width) as f64 + 0.5);
+    }
+    (su / sum, sv / sum)
+}
+
 #[test]
 fn the_observers_velocity_moves_a_star_by_the_aberration_angle() {
     // 30 km/s along the camera's x axis, the star on the boresight (90°
@@ -209,15 +221,7 @@ fn the_observers_velocity_moves_a_star_by_the_aberration_angle() {
     let centroid = |stars: String| {
         let mut s = sky_shot(radec(30.0, 20.0), 0.0, 64, f_px, &stars);
         s.q = shot.q;
-        let e = render(&s.scene(dir.path())).electrons;
-        let (mut sum, mut su, mut sv) = (0.0, 0.0, 0.0);
-        for (k, &x) in e.iter().enumerate() {
-            let x = x as f64;
-            sum += x;
-            su += x * ((k % 64) as f64 + 0.5);
-            sv += x * ((k / 64) as f64 + 0.5);
-        }
-        (su / sum, sv / sum)
+        centroid_of(&render(&s.scene(dir.path())).electrons, 64)
     };
     let still = centroid(catalogue.clone());
     let moving = centroid(format!(
@@ -264,15 +268,7 @@ fn a_nearby_star_moves_by_its_parallax() {
     let centroid = |stars: String| {
         let mut s = sky_shot(radec(30.0, 20.0), 0.0, 64, f_px, &stars);
         s.q = shot.q;
-        let e = render(&s.scene(dir.path())).electrons;
-        let (mut sum, mut su, mut sv) = (0.0, 0.0, 0.0);
-        for (k, &x) in e.iter().enumerate() {
-            let x = x as f64;
-            sum += x;
-            su += x * ((k % 64) as f64 + 0.5);
-            sv += x * ((k / 64) as f64 + 0.5);
-        }
-        (su / sum, sv / sum)
+        centroid_of(&render(&s.scene(dir.path())).electrons, 64)
     };
     let far = centroid(write(None));
     let near = centroid(write(Some(parallax_mas)));
