@@ -24,6 +24,9 @@ import sys
 import tempfile
 import time
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_governor  # noqa: E402  (its facility file)
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.path.join(ROOT, "target", "release", "optistim")
 OUT = os.path.join(ROOT, "out", "bench_facility_shadows")
@@ -44,14 +47,10 @@ def scene_file(tmp, shadows):
 
 
 def facility_file(tmp, scene, tag):
-    """configs/facility.toml with the governor off and `scene`."""
-    text = open(os.path.join(ROOT, "configs", "facility.toml")).read()
-    lines = [l for l in text.splitlines() if not l.startswith("governor =")]
-    text = "\n".join(lines) + "\n"
-    text = text.replace("[timing]\n", '[timing]\ngovernor = "off"\n')
-    text = text.replace('scene = "moon.toml"', f'scene = "{scene}"')
-    text = text.replace('trajectory = "', f'trajectory = "{ROOT}/configs/')
-    text = text.replace('"../calib', f'"{ROOT}/calib')
+    """configs/facility.toml with the governor off and `scene` (the
+    governor benchmark's file, its scene replaced)."""
+    text = open(bench_governor.facility_file("off", tmp)).read()
+    text = text.replace(f'scene = "{ROOT}/configs/moon.toml"', f'scene = "{scene}"')
     path = os.path.join(tmp, f"facility_{tag}.toml")
     open(path, "w").write(text)
     return path
