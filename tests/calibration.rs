@@ -592,6 +592,7 @@ fn run_verify(
         mismatch_by_level: None,
         spectral: None,
         meter_uncertainty_k2_percent: Some(1.0),
+        lut_scale_k2_percent: Some(report.budget.scale_total()),
     };
     let mut ckpt = Checkpoint::open(&dir.join("verify.jsonl"), "fp", "verify", false).unwrap();
     let (mut screen, mut camera, mut meter) = (

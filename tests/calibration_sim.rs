@@ -660,6 +660,7 @@ fn verify_on(
         mismatch_by_level: None,
         spectral: Some(CameraSpectral::from_scene(&scene)),
         meter_uncertainty_k2_percent: Some(1.0),
+        lut_scale_k2_percent: Some(report.budget.scale_total()),
     };
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt = Checkpoint::open(&dir.path().join("v.jsonl"), "fp", "verify", false).unwrap();
@@ -743,6 +744,48 @@ fn verify_moves_by_the_injected_error() {
     let r = verify_on(&base_sim, wrong, &report, resp, 1.0);
     let e = 100.0 * (1.0 / 1.03 - 1.0);
     check("LUT +3 %", &r, e, e);
+    let shaped: Vec<f64> = levels
+        .iter()
+        .map(|&d| (1.0 + 0.05 * (1.0 - d / 255.0)) * lut.radiance(d))
+        .collect();
+    let shaped = DisplayLut::from_points(&levels, &shaped, 8).unwrap();
+    let shaped = verify_on(&base_sim, shaped, &report, resp, 1.0);
+    common_mode_tells_scale_from_shape(&base, &r, &shaped);
+}
+
+/// The split of verify's camera errors (`CommonMode`): a LUT 3 % bright
+/// everywhere (`scaled`) moves the common mode beyond its budget (the
+/// baseline's mean + 1/1.03 − 1, out of ± hypot(responsivity, LUT scale)
+/// ≈ ± 1.5 %) and leaves the spread about it as it was (within 0.1
+/// percentage points); a LUT wrong in its shape (`shaped`: 5 % bright at
+/// level 0, tapering linearly to 0 at 255) widens the spread by more than
+/// a percentage point, since its patches (levels 15–242) move by 4.5 … 0.3 %.
+fn common_mode_tells_scale_from_shape(
+    base: &VerifyReport,
+    scaled: &VerifyReport,
+    shaped: &VerifyReport,
+) {
+    let common = |r: &VerifyReport| r.camera_common_mode.clone().expect("common mode");
+    let (b, s, c) = (common(base), common(scaled), common(shaped));
+    println!(
+        "baseline: {}\nLUT +3 %: {}\nLUT shaped: {}",
+        b.describe(),
+        s.describe(),
+        c.describe()
+    );
+    let expected = shift_by(b.mean_percent, 1.0 / 1.03);
+    assert!(
+        (s.mean_percent - expected).abs() < 0.15,
+        "{s:?} vs {expected}"
+    );
+    assert!(b.within && !s.within, "{b:?} {s:?}");
+    assert!((s.max_spread_percent - b.max_spread_percent).abs() < 0.1);
+    assert!(c.max_spread_percent > b.max_spread_percent + 1.0, "{c:?}");
+}
+
+/// `mean` (%) after the measured radiance is scaled by `factor`.
+fn shift_by(mean: f64, factor: f64) -> f64 {
+    100.0 * ((1.0 + mean / 100.0) * factor - 1.0)
 }
 
 /// The sensitivity table of docs/CALIBRATION.md, the rows not measured by

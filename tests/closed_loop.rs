@@ -551,7 +551,8 @@ fn honest_campaigns_reproduce_the_render_over_ten_seeds() {
         let (cmp, verified, report) = honest_loop(seed);
         println!(
             "seed {seed:2}: disk {:+.3} % (quoted k = 2: {:.3} %), p95 {:.2} %, centroid ({:+.4}, {:+.4}) px, \
-             limb {:+.4} px; verify {} (max |error| {:.2} %, {} patches beyond their uncertainty)",
+             limb {:+.4} px; verify {} (max |error| {:.2} %, {} patches beyond their uncertainty; \
+             camera common mode {:+.3} % of ± {:.3} %, spread {:.3} %)",
             100.0 * cmp.disk_signal,
             100.0 * cmp.u_k2.unwrap_or(f64::NAN),
             100.0 * cmp.p95,
@@ -561,6 +562,9 @@ fn honest_campaigns_reproduce_the_render_over_ten_seeds() {
             if verified { "PASS" } else { "FAIL" },
             report["max_error_percent"].as_f64().unwrap_or(f64::NAN),
             report["failures"].as_u64().unwrap_or(0),
+            report["camera_common_mode"]["mean_percent"].as_f64().unwrap_or(f64::NAN),
+            report["camera_common_mode"]["budget_k2_percent"].as_f64().unwrap_or(f64::NAN),
+            report["camera_common_mode"]["max_spread_percent"].as_f64().unwrap_or(f64::NAN),
         );
         results.push((seed, cmp, verified));
     }

@@ -19,7 +19,11 @@
 //! `verify.max_error_percent` overrides it; and a quick drift check: a few
 //! uniform levels against the LUT (relative, with the radiometric scale).
 //! [`VerifyReport::passed`] is false when a patch misses, and
-//! `optistim calibrate verify` then exits non-zero.
+//! `optistim calibrate verify` then exits non-zero. The report also splits
+//! the camera's errors into their common mode (one draw per campaign: the
+//! lab responsivity's error and the LUT's scale error, judged against
+//! those two budgets) and the spots' spread about it (the LUT's shape, the
+//! flat field, noise): [`CommonMode`].
 
 use std::path::Path;
 
@@ -80,6 +84,9 @@ pub struct VerifySetup<'a> {
     pub spectral: Option<CameraSpectral>,
     /// The meter's scale uncertainty (k = 2, %), if declared.
     pub meter_uncertainty_k2_percent: Option<f64>,
+    /// The LUT's scale-wide uncertainty (k = 2, %: the radiometric
+    /// report's budget without the per-level noise and fit), if known.
+    pub lut_scale_k2_percent: Option<f64>,
 }
 
 /// One camera spot of a patch.
@@ -151,6 +158,66 @@ pub struct VerifyReport {
     pub drift_warn_percent: f64,
     pub drift_warning: bool,
     pub passed: bool,
+    /// The camera's errors split into common mode and spread (absent in
+    /// reports written before it was added).
+    #[serde(default)]
+    pub camera_common_mode: Option<CommonMode>,
+}
+
+/// The camera's error over every spot and patch split in two. The common
+/// mode (their mean) is one draw per campaign, the lab responsivity's
+/// error plus the LUT's scale error, so it is judged against those two
+/// budgets alone; what is left per spot (the LUT's shape between levels,
+/// the flat field, the camera's noise) is the spread. A per-spot threshold
+/// counts the common draw against every spot; when verify fails, a common
+/// mode beyond its budget with a small spread points at the scale (the
+/// lab responsivity or the LUT's), a wide spread at the LUT's shape or the
+/// flat field. Reported, not part of the verdict.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CommonMode {
+    /// Mean camera error, %.
+    pub mean_percent: f64,
+    /// Its budget (k = 2, %): the responsivity's and the LUT scale's in
+    /// quadrature (the responsivity's alone when the scale's is unknown).
+    pub budget_k2_percent: f64,
+    /// The LUT scale's part of that budget, if known.
+    pub lut_scale_k2_percent: Option<f64>,
+    /// |mean| within the budget.
+    pub within: bool,
+    /// Largest |spot error − mean|, %.
+    pub max_spread_percent: f64,
+}
+
+impl CommonMode {
+    /// From every spot's error (%), the responsivity's and the LUT scale's
+    /// k = 2 uncertainties (%); `None` without spots.
+    pub fn of(errors: &[f64], responsivity_k2: f64, lut_scale_k2: Option<f64>) -> Option<Self> {
+        if errors.is_empty() {
+            return None;
+        }
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let budget = responsivity_k2.hypot(lut_scale_k2.unwrap_or(0.0));
+        Some(CommonMode {
+            mean_percent: mean,
+            budget_k2_percent: budget,
+            lut_scale_k2_percent: lut_scale_k2,
+            within: mean.abs() <= budget,
+            max_spread_percent: errors.iter().fold(0.0, |a, e| a.max((e - mean).abs())),
+        })
+    }
+
+    /// One line for the terminal and the failure message.
+    pub fn describe(&self) -> String {
+        format!(
+            "camera common mode {:+.3} % against ± {:.2} % (responsivity and LUT scale{}): {}; spread about it ≤ {:.3} %",
+            self.mean_percent,
+            self.budget_k2_percent,
+            self.lut_scale_k2_percent
+                .map_or(", the scale's unknown".into(), |u| format!(" {u:.2} %")),
+            if self.within { "within" } else { "BEYOND" },
+            self.max_spread_percent
+        )
+    }
 }
 
 /// Target radiances: `n` log-spaced from 3× black (or 1 % of max if the
@@ -463,13 +530,13 @@ impl VerifyReport {
     fn new(patches: Vec<Patch>, drift: Vec<DriftPoint>, setup: &VerifySetup) -> Self {
         let cfg = setup.cfg;
         let mut failures = 0;
-        let (mut max_error, mut cam_sum, mut cam_n) = (0.0f64, 0.0, 0usize);
+        let mut max_error = 0.0f64;
+        let mut camera_errors = Vec::new();
         let (mut meter_sum, mut meter_n) = (0.0, 0usize);
         for p in &patches {
             for s in &p.spots {
                 max_error = max_error.max(s.error_percent.abs());
-                cam_sum += s.error_percent;
-                cam_n += 1;
+                camera_errors.push(s.error_percent);
                 failures += usize::from(!(s.error_percent.abs() <= p.camera_threshold_percent));
             }
             if let Some(e) = p.meter_error_percent.filter(|_| p.meter_judged) {
@@ -484,14 +551,16 @@ impl VerifyReport {
         let max_drift = drift
             .iter()
             .fold(0.0f64, |a, d| a.max(d.drift_percent.abs()));
+        let r_u = setup.camera.responsivity.uncertainty_k2_percent;
+        let common = CommonMode::of(&camera_errors, r_u, setup.lut_scale_k2_percent);
         VerifyReport {
             patches,
             drift,
             max_error_percent: max_error,
-            mean_camera_error_percent: cam_sum / cam_n.max(1) as f64,
+            mean_camera_error_percent: common.as_ref().map_or(0.0, |c| c.mean_percent),
             mean_meter_error_percent: (meter_n > 0).then(|| meter_sum / meter_n as f64),
             threshold_override_percent: cfg.verify.max_error_percent,
-            responsivity_uncertainty_k2_percent: setup.camera.responsivity.uncertainty_k2_percent,
+            responsivity_uncertainty_k2_percent: r_u,
             lut_uncertainty: setup
                 .lut
                 .uncertainty_k2_percent(setup.lut.max_radiance())
@@ -501,6 +570,7 @@ impl VerifyReport {
             drift_warn_percent: cfg.verify.drift_warn_percent,
             drift_warning: max_drift > cfg.verify.drift_warn_percent,
             passed: failures == 0,
+            camera_common_mode: common,
         }
     }
 }
@@ -562,6 +632,10 @@ pub fn summary(r: &VerifyReport) -> String {
             ""
         }
     ));
+    if let Some(c) = &r.camera_common_mode {
+        s.push_str(&c.describe());
+        s.push('\n');
+    }
     s
 }
 
@@ -613,8 +687,10 @@ pub fn plot(r: &VerifyReport, path: &Path) -> Result<()> {
         path,
         &LogXPanels {
             title: format!(
-                "Verify: achieved/target − 1 (mean camera {:+.2} %, {} beyond threshold: {})",
+                "Verify: achieved/target − 1 (camera common mode {:+.2} % of ± {:.2} %, spread ≤ {:.2} %; {} beyond threshold: {})",
                 r.mean_camera_error_percent,
+                r.camera_common_mode.as_ref().map_or(f64::NAN, |c| c.budget_k2_percent),
+                r.camera_common_mode.as_ref().map_or(f64::NAN, |c| c.max_spread_percent),
                 r.failures,
                 if r.passed { "PASS" } else { "FAIL" }
             ),

@@ -469,6 +469,7 @@ fn run_verify(
             .meter
             .as_ref()
             .and_then(|m| m.scale_uncertainty_k2_percent),
+        lut_scale_k2_percent: Some(rep.budget.scale_total()),
     };
     let report = verify::run(inst, &setup, ckpt)?;
     let json = cfg.out_dir.join("verify_report.json");
@@ -487,9 +488,13 @@ fn run_verify(
     }
     if !report.passed {
         bail!(
-            "verification failed: {} measurements beyond their threshold (max |achieved/target − 1| {:.3} %)",
+            "verification failed: {} measurements beyond their threshold (max |achieved/target − 1| {:.3} %){}",
             report.failures,
-            report.max_error_percent
+            report.max_error_percent,
+            report
+                .camera_common_mode
+                .as_ref()
+                .map_or(String::new(), |c| format!("; {}", c.describe()))
         );
     }
     Ok(())
