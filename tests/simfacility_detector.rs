@@ -8,56 +8,30 @@
 //! dark frames have the closed-form mean and variance and row means the
 //! row offset's variance; the non-linearity follows e (1 − β e / FW).
 
-use optistim::facility::display::Display;
-use optistim::facility::lut::encode_grey;
-use optistim::simfacility::{SimFacility, SimFacilityConfig};
+use optistim::simfacility::SimFacility;
+
+mod common;
+use common::simfacility::{show_uniform, SimToml};
 
 /// Camera size: wide rows for the row means, many pixels for the PTC.
 const W: usize = 128;
 const H: usize = 256;
 
-/// A 64×48 screen (one frame kept: the frame shown is taken to have been up
-/// for any exposure) seen by a 128×256 camera with `camera` keys added.
+/// The small facility's screen (one frame kept: the frame shown is taken
+/// to have been up for any exposure) at full white, seen by a 128×256
+/// camera at 40 000 px with `camera` keys added.
 fn facility(camera: &str) -> SimFacility {
-    let text = format!(
-        r#"
-seed = 11
-[screen]
-resolution = [64, 48]
-refresh_hz = 60.0
-pixel_pitch = 1.0e-4
-gamma = 2.2
-max_radiance = 2.0
-black_level = 0.01
-spectrum = "flat"
-history_frames = 1
-[collimator]
-focal_length = 0.5
-transmission = 0.8
-[camera]
-resolution = [{W}, {H}]
-fx = 40000.0
-fy = 40000.0
-cx = 64.0
-cy = 128.0
-focal_length = 0.05
-f_number = 4.0
-band_nm = [450.0, 820.0]
-sun_spectrum = "blackbody"
-exposure = 0.01
-supersample = 1
-bits = 16
-{camera}
-[meter]
-response = "flat"
-spot_center_px = [32.0, 24.0]
-spot_radius_px = 5.0
-"#
-    );
-    let f = SimFacility::new(SimFacilityConfig::parse(&text, "detector.toml").unwrap()).unwrap();
-    let mut d = f.display();
-    let (w, h) = d.size();
-    d.present(&vec![encode_grey(255, 8); w * h]).unwrap();
+    let f = SimToml::small()
+        .seed(11)
+        .with("screen", "history_frames = 1")
+        .with(
+            "camera",
+            &format!("resolution = [{W}, {H}]\nfx = 40000.0\nfy = 40000.0\ncx = 64.0\ncy = 128.0"),
+        )
+        .with("camera", "supersample = 1")
+        .with("camera", camera)
+        .facility();
+    show_uniform(&f, 255);
     f
 }
 
