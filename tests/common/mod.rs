@@ -356,6 +356,7 @@ pub fn visible_cap_irradiance(
     total * radius * radius
 }
 
+pub mod ptc;
 pub mod ring_dem;
 pub mod simfacility;
 
