@@ -13,12 +13,13 @@ use optistim::calibration::flat;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
 use optistim::calibration::radiometric::{self, Outputs, Setup};
 use optistim::calibration::responsivity::CameraResponsivity;
+use optistim::calibration::show_level;
 use optistim::calibration::verify::{self, AbsoluteCamera, VerifyReport, VerifySetup};
-use optistim::calibration::{show_level, Instruments};
 use optistim::facility::lut::DisplayLut;
 use optistim::instruments::{Camera, CaptureRequest, SpotMeter, SpotReading};
 use optistim::radiometry::spectrum::Table;
 use optistim::scene::Scene;
+use optistim::simfacility::instruments::SimInstruments;
 use optistim::simfacility::{SimFacility, SimMeter};
 
 mod common;
@@ -122,17 +123,9 @@ fn campaign(
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt =
         Checkpoint::open(&dir.path().join("c.jsonl"), "fp", "radiometric", false).unwrap();
-    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let mut rig = SimInstruments::new(sim);
     let mut meter = ScaledMeter(sim.meter(), meter_scale);
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: Some(&mut meter),
-        darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(Some(&mut meter), darks);
     let mut setup = Setup {
         cfg: &cfg,
         bits: 8,
@@ -169,18 +162,10 @@ fn calibrate_lut_measured(sim: &SimFacility) -> (radiometric::Report, DisplayLut
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt =
         Checkpoint::open(&dir.path().join("c.jsonl"), "fp", "radiometric", false).unwrap();
-    let (mut display, mut camera, mut meter) = (sim.display(), sim.camera(), sim.meter());
+    let (mut rig, mut meter) = (SimInstruments::new(sim), sim.meter());
     let mut spectro = sim.spectroradiometer();
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
     let mut darks = DarkBank::shutter(4);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: Some(&mut meter),
-        darks: &mut darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(Some(&mut meter), &mut darks);
     let mut setup = Setup {
         cfg: &cfg,
         bits: 8,
@@ -548,17 +533,9 @@ fn sim_flat(f_scale: f64, dc: f64) -> (SimFacility, Vec<f32>, flat::FlatReport) 
         camera_flat: Some(sim.camera_flat()),
     };
     let mut ckpt = Checkpoint::open(&dir.path().join("f.jsonl"), "fp", "flat", false).unwrap();
-    let (mut display, mut camera) = (sim.display(), sim.camera());
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
+    let mut rig = SimInstruments::new(&sim);
     let mut darks = DarkBank::shutter(2);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: None,
-        darks: &mut darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(None, &mut darks);
     let (gains, report) = flat::run(&mut inst, &setup, &mut ckpt).unwrap();
     (sim, gains, report)
 }
@@ -657,18 +634,10 @@ fn verify_on(
     };
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt = Checkpoint::open(&dir.path().join("v.jsonl"), "fp", "verify", false).unwrap();
-    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let mut rig = SimInstruments::new(sim);
     let mut meter = ScaledMeter(sim.meter(), meter_scale);
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
     let mut darks = DarkBank::shutter(4);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: Some(&mut meter),
-        darks: &mut darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(Some(&mut meter), &mut darks);
     let r = verify::run(&mut inst, &setup, &mut ckpt).unwrap();
     println!("{}", verify::summary(&r));
     r
