@@ -18,7 +18,7 @@ use optistim::calibration::checkpoint::Checkpoint;
 use optistim::calibration::config::CalibrateConfig;
 use optistim::calibration::dark::DarkBank;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
-use optistim::calibration::{flat, geometric, radiometric, Instruments};
+use optistim::calibration::{flat, geometric, radiometric};
 use optistim::facility::config::FacilityConfig;
 use optistim::facility::geometry::GeometryCalibration;
 use optistim::facility::lut::{DisplayLut, FlatField};
@@ -26,6 +26,7 @@ use optistim::figures::{curve_figure, CurveFigure, Panel, Series};
 use optistim::instruments::intrinsics::CameraIntrinsics;
 use optistim::radiometry::spectrum::Table;
 use optistim::scene::Scene;
+use optistim::simfacility::instruments::SimInstruments;
 use optistim::simfacility::{SimFacility, SimFacilityConfig};
 
 const FACILITY: &str = "configs/facility_calibrate.toml";
@@ -148,17 +149,9 @@ fn radiometric_once(
     let _ = std::fs::remove_file(dir.join("c.jsonl"));
     let start = Instant::now();
     let mut ckpt = Checkpoint::open(&dir.join("c.jsonl"), "bench", "radiometric", false)?;
-    let (mut display, mut camera, mut meter) = (sim.display(), sim.camera(), sim.meter());
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
+    let (mut rig, mut meter) = (SimInstruments::new(&sim), sim.meter());
     let mut darks = DarkBank::shutter(4);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: Some(&mut meter),
-        darks: &mut darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(Some(&mut meter), &mut darks);
     let meter_response = match cfg
         .meter
         .as_ref()
@@ -288,17 +281,9 @@ fn flat_once(
     };
     let _ = std::fs::remove_file(dir.join("f.jsonl"));
     let mut ckpt = Checkpoint::open(&dir.join("f.jsonl"), "bench", flat::ROUTINE, false)?;
-    let (mut display, mut camera) = (sim.display(), sim.camera());
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
+    let mut rig = SimInstruments::new(&sim);
     let mut darks = DarkBank::shutter(4);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: None,
-        darks: &mut darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(None, &mut darks);
     let start = Instant::now();
     let (gains, report) = flat::run(&mut inst, &setup, &mut ckpt)?;
     let tif = dir.join("flat_field.tif");

@@ -8,29 +8,15 @@
 //! first render and reused after it, as a frame loop or a dataset does.
 //! Prints the first (cold) render's times and the medians.
 
-use std::path::PathBuf;
+mod common;
+
 use std::time::Instant;
+
+use common::{cpu_ms, median, Positional};
 
 use optistim::render::detector::{render_scene, PixelGeometry, Summary};
 use optistim::render::Renderer;
 use optistim::scene::Scene;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-/// The process's CPU time, all threads [ms]: steadier than wall time on
-/// a loaded machine.
-fn cpu_ms() -> f64 {
-    let mut t = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes the timespec it is given.
-    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
-    t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
-}
 
 /// One `render_scene` call: its wall and CPU times [ms] and its summary.
 fn timed(scene: &Scene, renderer: &mut Renderer, pixels: &PixelGeometry) -> (f64, f64, Summary) {
@@ -53,12 +39,9 @@ fn stages(s: &Summary) -> (f64, f64, f64) {
 }
 
 fn main() -> anyhow::Result<()> {
-    let mut args = std::env::args().skip(1);
-    let path = PathBuf::from(
-        args.next()
-            .unwrap_or_else(|| "configs/moon_bench_camera.toml".into()),
-    );
-    let renders: usize = args.next().map_or(Ok(15), |s| s.parse())?;
+    let mut args = Positional::from_env();
+    let path = args.path("configs/moon_bench_camera.toml");
+    let renders: usize = args.value("RENDERS", 15)?;
     let camera = Scene::from_file(&path)?;
     let mut bare = camera.clone();
     bare.camera.sensor = None;

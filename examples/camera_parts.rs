@@ -7,24 +7,14 @@
 //! (default `configs/moon_bench_camera.toml`, 31 repeats); run it with
 //! `RAYON_NUM_THREADS=1` for one core's cost.
 
-use std::path::PathBuf;
+mod common;
 
+use common::{cpu_ms, Positional};
 use optistim::optics::psf::shared_kernel;
 use optistim::render::detector::{render_scene, PixelGeometry};
 use optistim::render::Renderer;
 use optistim::scene::Scene;
 use optistim::sensor::Sensor;
-
-/// The process's CPU time, all threads [ms].
-fn cpu_ms() -> f64 {
-    let mut t = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes the timespec it is given.
-    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
-    t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
-}
 
 /// Median CPU time [ms] of `repeats` calls of `f` (after one warm call).
 fn median_cpu(repeats: usize, mut f: impl FnMut(u64)) -> f64 {
@@ -41,12 +31,9 @@ fn median_cpu(repeats: usize, mut f: impl FnMut(u64)) -> f64 {
 }
 
 fn main() -> anyhow::Result<()> {
-    let mut args = std::env::args().skip(1);
-    let path = PathBuf::from(
-        args.next()
-            .unwrap_or_else(|| "configs/moon_bench_camera.toml".into()),
-    );
-    let repeats: usize = args.next().map_or(Ok(31), |s| s.parse())?;
+    let mut args = Positional::from_env();
+    let path = args.path("configs/moon_bench_camera.toml");
+    let repeats: usize = args.value("REPEATS", 31)?;
     let scene = Scene::from_file(&path)?;
     let cam = &scene.camera;
     let mut renderer = Renderer::new(cam.render_pinhole().clone());

@@ -13,8 +13,11 @@
 //! Needs a facility file without a geometry calibration or rotation (the
 //! bundled `configs/bench_facility_*.toml`); an alignment offset is kept.
 
-use std::path::PathBuf;
+mod common;
+
 use std::time::Instant;
+
+use common::{median, Positional};
 
 use glam::{DQuat, DVec3};
 
@@ -69,20 +72,12 @@ fn camera_image(img: &[f64], screen: &Pinhole, camera: &Pinhole) -> Vec<f64> {
     out
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn main() -> anyhow::Result<()> {
-    let mut args = std::env::args().skip(1);
-    let path = PathBuf::from(
-        args.next()
-            .unwrap_or_else(|| "configs/bench_facility_2560.toml".into()),
-    );
-    let range: f64 = args.next().map_or(Ok(1.1181e8), |s| s.parse())?;
-    let phase: f64 = args.next().map_or(Ok(60.0), |s| s.parse())?;
-    let renders: usize = args.next().map_or(Ok(15), |s| s.parse())?;
+    let mut args = Positional::from_env();
+    let path = args.path("configs/bench_facility_2560.toml");
+    let range: f64 = args.value("RANGE_M", 1.1181e8)?;
+    let phase: f64 = args.value("PHASE_DEG", 60.0)?;
+    let renders: usize = args.value("RENDERS", 15)?;
     let base = FacilityConfig::load(&path)?;
     let mut scene = Scene::from_file(&base.scenario.scene)?;
     let p = phase.to_radians();

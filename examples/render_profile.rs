@@ -6,21 +6,19 @@
 //! profile (`perf record`, or `valgrind --tool=cachegrind` for counts that
 //! do not depend on the machine's load) sees only the renderer.
 
-use std::path::PathBuf;
+mod common;
+
 use std::time::Instant;
+
+use common::{median, Positional};
 
 use optistim::render::Renderer;
 use optistim::scene::Scene;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn main() -> anyhow::Result<()> {
-    let mut args = std::env::args().skip(1);
-    let scene_path = PathBuf::from(args.next().unwrap_or_else(|| "configs/moon.toml".into()));
-    let renders: usize = args.next().map_or(Ok(20), |s| s.parse())?;
+    let mut args = Positional::from_env();
+    let scene_path = args.path("configs/moon.toml");
+    let renders: usize = args.value("RENDERS", 20)?;
     let scene = Scene::from_file(&scene_path)?;
     let mut renderer = Renderer::new(scene.camera.pinhole.clone());
     let mut total = Vec::new();

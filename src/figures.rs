@@ -134,6 +134,31 @@ fn draw_err(path: &Path) -> impl Fn(String) -> Error + '_ {
     move |e| Error::Other(format!("{}: cannot draw figure: {e}", path.display()))
 }
 
+/// A line series' key in the legend: a short stroke in its style.
+fn line_key(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style)
+}
+
+/// Draws the legend of the chart's labelled series at `position`: the
+/// figures' one look (14 px labels in a white, black-bordered box).
+fn draw_legend<'a, DB, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+) -> std::result::Result<(), String>
+where
+    DB: DrawingBackend + 'a,
+    CT: CoordTranslate,
+{
+    chart
+        .configure_series_labels()
+        .label_font((FONT_NAME, 14))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(position)
+        .draw()
+        .map_err(|e| e.to_string())
+}
+
 fn finite_points(s: &Series, log_y: bool) -> Vec<(f64, f64)> {
     s.points
         .iter()
@@ -280,9 +305,8 @@ macro_rules! draw_panel {
             .map_err(|e| $err(e.to_string()))?;
             if !s.label.is_empty() {
                 labelled = true;
-                anno.label(s.label.as_str()).legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(3))
-                });
+                anno.label(s.label.as_str())
+                    .legend(line_key(colour.stroke_width(3)));
             }
             if !s.point_labels.is_empty() {
                 let font = (FONT_NAME, 13).into_font().color(&colour);
@@ -302,14 +326,7 @@ macro_rules! draw_panel {
             }
         }
         if labelled {
-            chart
-                .configure_series_labels()
-                .label_font((FONT_NAME, 14))
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .position($legend)
-                .draw()
-                .map_err(|e| $err(e.to_string()))?;
+            draw_legend(&mut chart, $legend).map_err(|e| $err(e))?;
         }
     }};
 }
@@ -613,19 +630,10 @@ fn histogram_on(
             ))
             .map_err(|e| err(e.to_string()))?
             .label(label.as_str())
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(3))
-            });
+            .legend(line_key(colour.stroke_width(3)));
     }
     if !h.markers.is_empty() {
-        chart
-            .configure_series_labels()
-            .label_font((FONT_NAME, 14))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(|e| err(e.to_string()))?;
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(&err)?;
     }
     Ok(())
 }
@@ -1372,9 +1380,7 @@ pub fn shaded_band(path: impl AsRef<Path>, fig: &ShadedBand) -> Result<()> {
                 .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
                 .map_err(|e| err(e.to_string()))?
                 .label(label.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(3))
-                });
+                .legend(line_key(colour.stroke_width(3)));
         }
         for (y, label) in fig.lines.iter().filter(|l| ok(l.0)) {
             chart
@@ -1386,18 +1392,9 @@ pub fn shaded_band(path: impl AsRef<Path>, fig: &ShadedBand) -> Result<()> {
                 ))
                 .map_err(|e| err(e.to_string()))?
                 .label(label.as_str())
-                .legend(|(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2))
-                });
+                .legend(line_key(BLACK.stroke_width(2)));
         }
-        chart
-            .configure_series_labels()
-            .label_font((FONT_NAME, 14))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(|e| err(e.to_string()))?;
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(&err)?;
         Ok(())
     })
 }

@@ -48,6 +48,7 @@ pub mod labels;
 pub mod memo;
 pub mod optics;
 pub mod outfile;
+pub mod placeholders;
 pub mod planner;
 pub mod progress;
 pub mod radiometry;

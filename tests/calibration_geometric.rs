@@ -14,6 +14,8 @@ use optistim::facility::display::Display;
 use optistim::facility::geometry::GeometryCalibration;
 use optistim::instruments::{Camera, CameraFrame, CaptureRequest};
 
+mod common;
+
 const SCREEN: (usize, usize) = (960, 640);
 const CAMERA: (usize, usize) = (1024, 768);
 /// Collimator focal length in screen pixels (tan = offset / F).
@@ -478,8 +480,7 @@ mod props {
 #[test]
 fn simulated_facility_end_to_end() {
     use optistim::simfacility::SimFacility;
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let sim = SimFacility::load(root.join("configs/simfacility.toml")).unwrap();
+    let sim = SimFacility::load(common::simfacility::bundled_path()).unwrap();
     let cam = sim.config().camera.clone();
     let dir = tempfile::tempdir().unwrap();
     // The intrinsics file a camera calibration would give (OpenCV's pixel

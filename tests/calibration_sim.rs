@@ -13,13 +13,17 @@ use optistim::calibration::flat;
 use optistim::calibration::mismatch::{table_spectrum, CameraSpectral};
 use optistim::calibration::radiometric::{self, Outputs, Setup};
 use optistim::calibration::responsivity::CameraResponsivity;
+use optistim::calibration::show_level;
 use optistim::calibration::verify::{self, AbsoluteCamera, VerifyReport, VerifySetup};
-use optistim::calibration::{show_level, Instruments};
 use optistim::facility::lut::DisplayLut;
 use optistim::instruments::{Camera, CaptureRequest, SpotMeter, SpotReading};
 use optistim::radiometry::spectrum::Table;
 use optistim::scene::Scene;
-use optistim::simfacility::{SimFacility, SimFacilityConfig, SimMeter};
+use optistim::simfacility::instruments::SimInstruments;
+use optistim::simfacility::{SimFacility, SimMeter};
+
+mod common;
+use common::simfacility::bundled_edited;
 
 /// The bundled simulated facility with a 128 × 128 camera (the same
 /// focal length, so a 0.7° field around the axis) to keep the test fast.
@@ -29,22 +33,17 @@ fn small_facility() -> SimFacility {
 
 /// The same with the camera's `seed`, bias (DN) and dark current (e-/s).
 fn small_facility_with(seed: u64, bias_dn: f64, dark_current: f64) -> SimFacility {
-    let path = Path::new("configs/simfacility.toml");
-    let text = std::fs::read_to_string(path)
-        .unwrap()
-        .replace("resolution = [1024, 1024]", "resolution = [128, 128]")
-        .replace("cx = 512.0", "cx = 64.0")
-        .replace("cy = 512.0", "cy = 64.0")
-        .replacen("seed = 1", &format!("seed = {seed}"), 1)
-        .replace("bias_dn = 0.0", &format!("bias_dn = {bias_dn:?}"))
-        .replace(
+    bundled_edited(&[
+        ("resolution = [1024, 1024]", "resolution = [128, 128]"),
+        ("cx = 512.0", "cx = 64.0"),
+        ("cy = 512.0", "cy = 64.0"),
+        ("seed = 1", &format!("seed = {seed}")),
+        ("bias_dn = 0.0", &format!("bias_dn = {bias_dn:?}")),
+        (
             "dark_current = 50.0",
             &format!("dark_current = {dark_current:?}"),
-        );
-    assert!(text.contains(&format!("bias_dn = {bias_dn:?}")));
-    let mut cfg = SimFacilityConfig::parse(&text, path).unwrap();
-    cfg.resolve_paths(Path::new("configs"));
-    SimFacility::new(cfg).unwrap()
+        ),
+    ])
 }
 
 const CALIBRATE: &str = r#"
@@ -124,17 +123,9 @@ fn campaign(
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt =
         Checkpoint::open(&dir.path().join("c.jsonl"), "fp", "radiometric", false).unwrap();
-    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let mut rig = SimInstruments::new(sim);
     let mut meter = ScaledMeter(sim.meter(), meter_scale);
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: Some(&mut meter),
-        darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(Some(&mut meter), darks);
     let mut setup = Setup {
         cfg: &cfg,
         bits: 8,
@@ -171,18 +162,10 @@ fn calibrate_lut_measured(sim: &SimFacility) -> (radiometric::Report, DisplayLut
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt =
         Checkpoint::open(&dir.path().join("c.jsonl"), "fp", "radiometric", false).unwrap();
-    let (mut display, mut camera, mut meter) = (sim.display(), sim.camera(), sim.meter());
+    let (mut rig, mut meter) = (SimInstruments::new(sim), sim.meter());
     let mut spectro = sim.spectroradiometer();
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
     let mut darks = DarkBank::shutter(4);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: Some(&mut meter),
-        darks: &mut darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(Some(&mut meter), &mut darks);
     let mut setup = Setup {
         cfg: &cfg,
         bits: 8,
@@ -505,19 +488,15 @@ fn sim_flat(f_scale: f64, dc: f64) -> (SimFacility, Vec<f32>, flat::FlatReport) 
     use optistim::calibration::flat::FlatSetup;
     use optistim::facility::geometry::GeometryCalibration;
     // A 128 × 128 camera with 8× larger pixels: the bundled 6° field.
-    let path = Path::new("configs/simfacility.toml");
-    let text = std::fs::read_to_string(path)
-        .unwrap()
-        .replace("resolution = [1024, 1024]", "resolution = [128, 128]")
-        .replace("fx = 10247.4", "fx = 1280.925")
-        .replace("fy = 10247.4", "fy = 1280.925")
-        .replace("cx = 512.0", "cx = 64.0")
-        .replace("cy = 512.0", "cy = 64.0")
-        .replace("supersample = 3", "supersample = 4")
-        .replace("mura_rms = 0.003", "mura_rms = 0.0");
-    let mut scfg = SimFacilityConfig::parse(&text, path).unwrap();
-    scfg.resolve_paths(Path::new("configs"));
-    let sim = SimFacility::new(scfg).unwrap();
+    let sim = bundled_edited(&[
+        ("resolution = [1024, 1024]", "resolution = [128, 128]"),
+        ("fx = 10247.4", "fx = 1280.925"),
+        ("fy = 10247.4", "fy = 1280.925"),
+        ("cx = 512.0", "cx = 64.0"),
+        ("cy = 512.0", "cy = 64.0"),
+        ("supersample = 3", "supersample = 4"),
+        ("mura_rms = 0.003", "mura_rms = 0.0"),
+    ]);
     sim.advance(3600.0);
     let dir = tempfile::tempdir().unwrap();
     // The geometry file from the truth, nodes every 32 px.
@@ -554,17 +533,9 @@ fn sim_flat(f_scale: f64, dc: f64) -> (SimFacility, Vec<f32>, flat::FlatReport) 
         camera_flat: Some(sim.camera_flat()),
     };
     let mut ckpt = Checkpoint::open(&dir.path().join("f.jsonl"), "fp", "flat", false).unwrap();
-    let (mut display, mut camera) = (sim.display(), sim.camera());
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
+    let mut rig = SimInstruments::new(&sim);
     let mut darks = DarkBank::shutter(2);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: None,
-        darks: &mut darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(None, &mut darks);
     let (gains, report) = flat::run(&mut inst, &setup, &mut ckpt).unwrap();
     (sim, gains, report)
 }
@@ -664,18 +635,10 @@ fn verify_on(
     };
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt = Checkpoint::open(&dir.path().join("v.jsonl"), "fp", "verify", false).unwrap();
-    let (mut display, mut camera) = (sim.display(), sim.camera());
+    let mut rig = SimInstruments::new(sim);
     let mut meter = ScaledMeter(sim.meter(), meter_scale);
-    let clock = sim.clone();
-    let mut wait = move |s: f64| clock.advance(s);
     let mut darks = DarkBank::shutter(4);
-    let mut inst = Instruments {
-        display: &mut display,
-        camera: &mut camera,
-        meter: Some(&mut meter),
-        darks: &mut darks,
-        wait: &mut wait,
-    };
+    let mut inst = rig.lend(Some(&mut meter), &mut darks);
     let r = verify::run(&mut inst, &setup, &mut ckpt).unwrap();
     println!("{}", verify::summary(&r));
     r

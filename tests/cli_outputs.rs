@@ -10,6 +10,9 @@ use std::process::{Command, Output};
 
 use optistim::facility::log::read_records;
 
+mod common;
+use common::simfacility::SIM_FACILITY_ARGS;
+
 fn optistim(args: &[&str], extra: &[&Path]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_optistim"))
         .current_dir(env!("CARGO_MANIFEST_DIR"))
@@ -193,15 +196,7 @@ fn dump_refuses_earlier_frames_unless_overwriting() {
 
 #[test]
 fn captures_refuse_earlier_frames_unless_overwriting() {
-    frames_dir_is_kept_unless_told(
-        "--captures",
-        &[
-            "--display",
-            "sim-facility",
-            "--sim-facility",
-            "configs/simfacility.toml",
-        ],
-    );
+    frames_dir_is_kept_unless_told("--captures", &SIM_FACILITY_ARGS);
 }
 
 #[test]

@@ -1,5 +1,5 @@
-//! The EMVA 1288 sensor chain (`src/sensor`): a photon-transfer analysis
-//! written here (EMVA 1288 §6: temporal variance from the difference of two
+//! The EMVA 1288 sensor chain (`src/sensor`): the photon-transfer analysis
+//! of tests/common/ptc.rs (EMVA 1288 §6: temporal variance from the difference of two
 //! frames, gain from the mean–variance slope, dark current from the dark
 //! signal's growth with exposure, read noise from the dark variance less
 //! the quantisation noise 1/12 DN²) over flat fields rendered by the
@@ -13,6 +13,8 @@ use std::path::Path;
 
 use optistim::scene::Scene;
 use optistim::sensor::Sensor;
+
+use common::ptc::{pair_stats, Pair, PhotonTransfer};
 
 /// Configured truth.
 const GAIN: f64 = 0.25;
@@ -79,32 +81,15 @@ fn sensor_of(scene: &Scene) -> Sensor {
     )
 }
 
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len() as f64
-}
-
 fn as_f64(dn: &[u16]) -> Vec<f64> {
     dn.iter().map(|&v| v as f64).collect()
 }
 
-/// EMVA 1288: mean of two frames and the temporal variance
-/// var(A − B) / 2 (the fixed pattern cancels in the difference).
-fn pair_stats(sensor: &Sensor, rate: &[f32], t: f64, frame: u64) -> (f64, f64) {
+/// The pair of frames numbered `frame` and `frame + 1`.
+fn frame_pair(sensor: &Sensor, rate: &[f32], t: f64, frame: u64) -> (f64, f64) {
     let a = as_f64(&sensor.expose(rate, t, frame).dn);
     let b = as_f64(&sensor.expose(rate, t, frame + 1).dn);
-    let diff: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
-    let m = mean(&diff);
-    let var = diff.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (diff.len() - 1) as f64 / 2.0;
-    ((mean(&a) + mean(&b)) / 2.0, var)
-}
-
-/// Least-squares line y = a + b x.
-fn fit_line(x: &[f64], y: &[f64]) -> (f64, f64) {
-    let (mx, my) = (mean(x), mean(y));
-    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
-    let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
-    let slope = sxy / sxx;
-    (my - slope * mx, slope)
+    pair_stats(&a, &b)
 }
 
 #[test]
@@ -120,48 +105,18 @@ fn photon_transfer_recovers_gain_read_noise_and_dark_current() {
     );
     let sensor = sensor_of(&scene);
     let dark = vec![0.0f32; rate.len()];
-
-    // Dark signal against exposure: slope K · dark current.
-    let dark_times = [0.5, 1.0, 2.0, 4.0];
-    let dark_means: Vec<f64> = dark_times
-        .iter()
-        .enumerate()
-        .map(|(i, &t)| pair_stats(&sensor, &dark, t, 100 + 2 * i as u64).0)
-        .collect();
-    let (_, dark_slope) = fit_line(&dark_times, &dark_means);
-
-    // Photon transfer: light levels from 2 % to 80 % of the full well.
-    let mut signal = Vec::new();
-    let mut variance = Vec::new();
-    for (i, fill) in [0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.65, 0.8]
-        .iter()
-        .enumerate()
-    {
-        let t = fill * FULL_WELL / max_rate;
-        let (mu, var) = pair_stats(&sensor, rate, t, 2 * i as u64);
-        let (mu_dark, var_dark) = pair_stats(&sensor, &dark, t, 50 + 2 * i as u64);
-        signal.push(mu - mu_dark);
-        variance.push(var - var_dark);
-    }
-    let (_, gain) = fit_line(&signal, &variance);
-    let dark_current = dark_slope / gain;
-
-    // Read noise: σ²_dark = K² (σ_r² + D t) + 1/12 at a short exposure.
-    let t0 = 1e-6;
-    let (_, var0) = pair_stats(&sensor, &dark, t0, 200);
-    let read_noise = ((var0 - 1.0 / 12.0) / (gain * gain) - dark_current * t0).sqrt();
-
-    for (name, got, truth) in [
-        ("gain", gain, GAIN),
-        ("read noise", read_noise, READ_NOISE),
-        ("dark current", dark_current, DARK_CURRENT),
-    ] {
-        eprintln!("{name}: recovered {got:.5}, configured {truth}");
-        assert!(
-            (got / truth - 1.0).abs() < 0.02,
-            "{name}: recovered {got}, configured {truth}"
-        );
-    }
+    // Each pair its own frames: lit 0.., dark at the lit exposures 50..,
+    // the dark ramp 100.., the read-noise pair 200.
+    let ptc = PhotonTransfer::measure(FULL_WELL, max_rate, |which, t| {
+        let k = |n: usize| 2 * n as u64;
+        match which {
+            Pair::Light(n) => frame_pair(&sensor, rate, t, k(n)),
+            Pair::DarkAtLight(n) => frame_pair(&sensor, &dark, t, 50 + k(n)),
+            Pair::DarkRamp(n) => frame_pair(&sensor, &dark, t, 100 + k(n)),
+            Pair::ReadNoise => frame_pair(&sensor, &dark, t, 200),
+        }
+    });
+    ptc.assert_recovers(GAIN, READ_NOISE, DARK_CURRENT, 0.02);
 }
 
 /// The sensor a render loop shares (`Sensor::shared`, built once per

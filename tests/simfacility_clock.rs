@@ -3,51 +3,28 @@
 //! fresh power-on; a bad file is a one-line error naming it.
 
 use std::path::Path;
-use std::process::Command;
 
-use optistim::facility::display::Display;
-use optistim::facility::lut::encode_grey;
 use optistim::instruments::SpotMeter;
 use optistim::simfacility::clock::{self, ClockStart, SimClock};
-use optistim::simfacility::{SimFacility, SimFacilityConfig};
+use optistim::simfacility::SimFacility;
+
+mod common;
+use common::simfacility::{run_on_sim_facility, show_uniform, SimToml};
 
 /// A small facility whose white reads 2 W m⁻² sr⁻¹ × (1 − 0.05 e^(−t/100 s)).
 fn facility() -> SimFacility {
-    let text = r#"
-seed = 3
-[screen]
-resolution = [32, 24]
-refresh_hz = 60.0
-pixel_pitch = 1.0e-4
-gamma = 2.2
-max_radiance = 2.0
-black_level = 0.01
-spectrum = "flat"
-warmup_amplitude = 0.05
-warmup_time_constant = 100.0
-[collimator]
-focal_length = 0.5
-transmission = 0.8
-[camera]
-resolution = [8, 6]
-fx = 4000.0
-fy = 4000.0
-cx = 4.0
-cy = 3.0
-focal_length = 0.05
-f_number = 4.0
-band_nm = [450.0, 820.0]
-sun_spectrum = "blackbody"
-exposure = 0.01
-gain = 0.05
-full_well = 1.0e9
-bits = 16
-[meter]
-response = "flat"
-spot_center_px = [16.0, 12.0]
-spot_radius_px = 3.0
-"#;
-    SimFacility::new(SimFacilityConfig::parse(text, "t.toml").unwrap()).unwrap()
+    SimToml::small()
+        .seed(3)
+        .with(
+            "screen",
+            "resolution = [32, 24]\nwarmup_amplitude = 0.05\nwarmup_time_constant = 100.0",
+        )
+        .with("camera", "resolution = [8, 6]\ncx = 4.0\ncy = 3.0")
+        .with(
+            "meter",
+            "spot_center_px = [16.0, 12.0]\nspot_radius_px = 3.0",
+        )
+        .facility()
 }
 
 /// One command: shows white, reads the meter once (0.1 s integration) and
@@ -55,10 +32,7 @@ spot_radius_px = 3.0
 fn command(path: &Path, seconds: f64) -> (f64, ClockStart) {
     let f = facility();
     let clock = SimClock::attach(&f, path).unwrap();
-    let (w, h) = f.display().size();
-    f.display()
-        .present(&vec![encode_grey(255, 8); w * h])
-        .unwrap();
+    show_uniform(&f, 255);
     let reading = f.meter().measure().unwrap().value;
     f.advance(seconds);
     (reading, clock.start)
@@ -127,20 +101,7 @@ fn a_bad_clock_file_is_a_one_line_error_naming_it() {
 
 /// `optistim run --display sim-facility --sim-clock FILE`, three frames.
 fn run(dir: &Path, clock: &Path) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_optistim"))
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .args([
-            "run",
-            "configs/facility.toml",
-            "--frames",
-            "3",
-            "--display",
-            "sim-facility",
-            "--sim-facility",
-            "configs/simfacility.toml",
-            "--capture-every",
-            "1000",
-        ])
+    run_on_sim_facility(3, 1000)
         .arg("--captures")
         .arg(dir.join("cap"))
         .arg("--log")

@@ -7,9 +7,11 @@ use std::path::Path;
 use optistim::simfacility::{SimFacility, SimFacilityConfig};
 use proptest::prelude::*;
 
+mod common;
+use common::simfacility::bundled_path;
+
 fn bundled_text() -> String {
-    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/simfacility.toml"))
-        .unwrap()
+    std::fs::read_to_string(bundled_path()).unwrap()
 }
 
 /// The bundled file with the line starting with `key =` in `[section]`
@@ -44,7 +46,7 @@ fn with(section: &str, key: &str, value: Option<&str>) -> String {
 
 #[test]
 fn bundled_example_loads_and_builds() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/simfacility.toml");
+    let path = bundled_path();
     let f = SimFacility::load(&path).unwrap();
     assert_eq!(f.config().screen.resolution, [1920, 1080]);
     assert_eq!(f.config().camera.resolution, [1024, 1024]);

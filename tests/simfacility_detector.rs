@@ -1,63 +1,38 @@
 //! The simulated facility camera reads out through the one detector model
-//! (`src/sensor`, as `render`): a photon-transfer analysis written here
-//! (EMVA 1288 §6, as tests/sensor_emva.rs: temporal variance from the
-//! difference of two captures, gain from the mean–variance slope, dark
-//! current from the dark signal's growth with exposure, read noise from the
-//! dark variance less the quantisation noise 1/12 DN²) of its captures
-//! recovers its configured gain, read noise and dark current within 2 %;
+//! (`src/sensor`, as `render`): the photon-transfer analysis of
+//! tests/common/ptc.rs (EMVA 1288 §6, as tests/sensor_emva.rs: temporal
+//! variance from the difference of two captures, gain from the
+//! mean–variance slope, dark current from the dark signal's growth with
+//! exposure, read noise from the dark variance less the quantisation noise
+//! 1/12 DN²) of its captures recovers its configured gain, read noise and dark current within 2 %;
 //! dark frames have the closed-form mean and variance and row means the
 //! row offset's variance; the non-linearity follows e (1 − β e / FW).
 
-use optistim::facility::display::Display;
-use optistim::facility::lut::encode_grey;
-use optistim::simfacility::{SimFacility, SimFacilityConfig};
+use optistim::simfacility::SimFacility;
+
+mod common;
+use common::ptc::{mean, pair_stats, variance, PhotonTransfer};
+use common::simfacility::{show_uniform, SimToml};
 
 /// Camera size: wide rows for the row means, many pixels for the PTC.
 const W: usize = 128;
 const H: usize = 256;
 
-/// A 64×48 screen (one frame kept: the frame shown is taken to have been up
-/// for any exposure) seen by a 128×256 camera with `camera` keys added.
+/// The small facility's screen (one frame kept: the frame shown is taken
+/// to have been up for any exposure) at full white, seen by a 128×256
+/// camera at 40 000 px with `camera` keys added.
 fn facility(camera: &str) -> SimFacility {
-    let text = format!(
-        r#"
-seed = 11
-[screen]
-resolution = [64, 48]
-refresh_hz = 60.0
-pixel_pitch = 1.0e-4
-gamma = 2.2
-max_radiance = 2.0
-black_level = 0.01
-spectrum = "flat"
-history_frames = 1
-[collimator]
-focal_length = 0.5
-transmission = 0.8
-[camera]
-resolution = [{W}, {H}]
-fx = 40000.0
-fy = 40000.0
-cx = 64.0
-cy = 128.0
-focal_length = 0.05
-f_number = 4.0
-band_nm = [450.0, 820.0]
-sun_spectrum = "blackbody"
-exposure = 0.01
-supersample = 1
-bits = 16
-{camera}
-[meter]
-response = "flat"
-spot_center_px = [32.0, 24.0]
-spot_radius_px = 5.0
-"#
-    );
-    let f = SimFacility::new(SimFacilityConfig::parse(&text, "detector.toml").unwrap()).unwrap();
-    let mut d = f.display();
-    let (w, h) = d.size();
-    d.present(&vec![encode_grey(255, 8); w * h]).unwrap();
+    let f = SimToml::small()
+        .seed(11)
+        .with("screen", "history_frames = 1")
+        .with(
+            "camera",
+            &format!("resolution = [{W}, {H}]\nfx = 40000.0\nfy = 40000.0\ncx = 64.0\ncy = 128.0"),
+        )
+        .with("camera", "supersample = 1")
+        .with("camera", camera)
+        .facility();
+    show_uniform(&f, 255);
     f
 }
 
@@ -71,30 +46,6 @@ fn dark(f: &SimFacility, t: f64) -> Vec<f64> {
 
 fn as_f64(v: &[f32]) -> Vec<f64> {
     v.iter().map(|&x| x as f64).collect()
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len() as f64
-}
-
-fn variance(v: &[f64]) -> f64 {
-    let m = mean(v);
-    v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64
-}
-
-/// Mean of two captures and their temporal variance var(A − B) / 2.
-fn pair_stats(capture: impl Fn() -> Vec<f64>) -> (f64, f64) {
-    let (a, b) = (capture(), capture());
-    let diff: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
-    ((mean(&a) + mean(&b)) / 2.0, variance(&diff) / 2.0)
-}
-
-/// Least-squares line y = a + b x.
-fn fit_line(x: &[f64], y: &[f64]) -> (f64, f64) {
-    let (mx, my) = (mean(x), mean(y));
-    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
-    let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
-    (my - sxy / sxx * mx, sxy / sxx)
 }
 
 #[test]
@@ -112,37 +63,19 @@ fn photon_transfer_recovers_gain_read_noise_and_dark_current() {
     let probe = light(&f, 0.01);
     let max_rate = (probe.iter().copied().fold(0.0, f64::max) - 100.0) / GAIN / 0.01;
 
-    let dark_times = [0.5, 1.0, 2.0, 4.0];
-    let dark_means: Vec<f64> = dark_times
-        .iter()
-        .map(|&t| pair_stats(|| dark(&f, t)).0)
-        .collect();
-    let (_, dark_slope) = fit_line(&dark_times, &dark_means);
-
-    let (mut signal, mut var) = (Vec::new(), Vec::new());
-    for fill in [0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.65, 0.8] {
-        let t = fill * FULL_WELL / max_rate;
-        let (mu, v) = pair_stats(|| light(&f, t));
-        let (mu_dark, v_dark) = pair_stats(|| dark(&f, t));
-        signal.push(mu - mu_dark);
-        var.push(v - v_dark);
-    }
-    let (_, gain) = fit_line(&signal, &var);
-    let dark_current = dark_slope / gain;
-    let t0 = 1e-6;
-    let (_, var0) = pair_stats(|| dark(&f, t0));
-    let read_noise = ((var0 - 1.0 / 12.0) / (gain * gain) - dark_current * t0).sqrt();
-    for (name, got, truth) in [
-        ("gain", gain, GAIN),
-        ("read noise", read_noise, READ_NOISE),
-        ("dark current", dark_current, DARK_CURRENT),
-    ] {
-        eprintln!("{name}: recovered {got:.5}, configured {truth}");
-        assert!(
-            (got / truth - 1.0).abs() < 0.02,
-            "{name}: recovered {got}, configured {truth}"
-        );
-    }
+    // Each pair two successive captures.
+    let ptc = PhotonTransfer::measure(FULL_WELL, max_rate, |which, t| {
+        let capture = || {
+            if which.is_light() {
+                light(&f, t)
+            } else {
+                dark(&f, t)
+            }
+        };
+        let a = capture();
+        pair_stats(&a, &capture())
+    });
+    ptc.assert_recovers(GAIN, READ_NOISE, DARK_CURRENT, 0.02);
 }
 
 #[test]

@@ -8,74 +8,30 @@
 use optistim::facility::display::Display;
 use optistim::facility::lut::encode_grey;
 use optistim::instruments::{Camera, CaptureRequest, Shutter};
-use optistim::simfacility::{SimFacility, SimFacilityConfig};
+use optistim::simfacility::SimFacility;
+
+mod common;
+use common::simfacility::{show_uniform as uniform, SimToml};
 
 const H: f64 = 6.626_070_15e-34;
 const C: f64 = 299_792_458.0;
 const KB: f64 = 1.380_649e-23;
 
-/// A small facility (64×48 screen, flat spectrum, 40×30 camera, every
-/// noise off) with extra keys per section.
-fn toml(screen: &str, collimator: &str, camera: &str) -> String {
-    format!(
-        r#"
-seed = 7
-[screen]
-resolution = [64, 48]
-refresh_hz = 60.0
-pixel_pitch = 1.0e-4
-gamma = 2.2
-max_radiance = 2.0
-black_level = 0.01
-spectrum = "flat"
-{screen}
-[collimator]
-focal_length = 0.5
-transmission = 0.8
-{collimator}
-[camera]
-resolution = [40, 30]
-fx = 4000.0
-fy = 4000.0
-cx = 20.0
-cy = 15.0
-focal_length = 0.05
-f_number = 4.0
-band_nm = [450.0, 820.0]
-sun_spectrum = "blackbody"
-exposure = 0.01
-gain = 0.05
-full_well = 1.0e9
-bits = 16
-{camera}
-[meter]
-response = "flat"
-spot_center_px = [32.0, 24.0]
-spot_radius_px = 5.0
-"#
-    )
+/// The small facility with extra keys per section.
+fn keys(screen: &str, collimator: &str, camera: &str) -> SimToml {
+    SimToml::small()
+        .with("screen", screen)
+        .with("collimator", collimator)
+        .with("camera", camera)
 }
 
-fn facility(text: &str) -> SimFacility {
-    SimFacility::new(SimFacilityConfig::parse(text, "test.toml").unwrap()).unwrap()
-}
-
+/// The same with every noise off unless `camera` turns it on.
 fn quiet(screen: &str, collimator: &str, camera: &str) -> SimFacility {
-    let camera = if camera.contains("shot_noise") {
-        camera.to_string()
-    } else {
-        format!("shot_noise = false\n{camera}")
-    };
-    facility(&toml(screen, collimator, &camera))
+    keys(screen, collimator, &format!("shot_noise = false\n{camera}")).facility()
 }
 
 fn show(f: &SimFacility, frame: &[u32]) {
     f.display().present(frame).unwrap();
-}
-
-fn uniform(f: &SimFacility, level: u32) {
-    let (w, h) = f.display().size();
-    show(f, &vec![encode_grey(level, 8); w * h]);
 }
 
 fn capture(f: &SimFacility, exposure: f64, shutter: Shutter) -> Vec<f64> {
@@ -183,10 +139,8 @@ fn grey_spectrum_is_the_channels_curves_times_their_primaries() {
 
 #[test]
 fn a_decreasing_tone_curve_is_refused() {
-    let text =
-        toml("gamma = 0.6\nshoulder = [0.2, 0.0, 0.0]", "", "").replacen("gamma = 2.2\n", "", 1);
-    let err = SimFacilityConfig::parse(&text, "t.toml")
-        .and_then(SimFacility::new)
+    let err = keys("gamma = 0.6\nshoulder = [0.2, 0.0, 0.0]", "", "")
+        .try_facility()
         .err()
         .expect("refused")
         .to_string();
@@ -318,10 +272,7 @@ fn dark_levels_are_less_uniform() {
     // U(ℓ, p) = [(1 − b) x^γ + b (1 + 0.3 (n_x⁴ + n_y⁴)/2)] / [(1 − b) x^γ + b].
     // A 0.7 m collimator shows the whole screen to the camera: pixel (i, j)
     // sees (32 + 1.75 (i + ½ − 20), 24 + 1.75 (j + ½ − 15)).
-    let f = facility(
-        &toml("black_nonuniformity = 0.3", "", "shot_noise = false")
-            .replace("focal_length = 0.5", "focal_length = 0.7"),
-    );
+    let f = quiet("black_nonuniformity = 0.3", "focal_length = 0.7", "");
     let u = |level: f64, i: usize, j: usize| {
         let (x, y) = (
             32.0 + 1.75 * (i as f64 + 0.5 - 20.0),
@@ -423,17 +374,15 @@ fn collimator_decentring_and_thin_prism_follow_the_formula() {
 
 #[test]
 fn a_folding_collimator_is_refused() {
-    let text = toml(
+    let err = keys(
         "",
         "thin_prism = [0.0, 1000.0, 0.0, 0.0]\nfocal_length = 0.05",
         "",
     )
-    .replacen("focal_length = 0.5\n", "", 1);
-    let err = SimFacilityConfig::parse(&text, "t.toml")
-        .and_then(SimFacility::new)
-        .err()
-        .expect("refused")
-        .to_string();
+    .try_facility()
+    .err()
+    .expect("refused")
+    .to_string();
     assert!(err.contains("collimator.thin_prism"), "{err}");
 }
 
@@ -485,9 +434,7 @@ fn non_linearity_at_half_and_full_well() {
         uniform(&linear, 255);
         let e_lin = capture(&linear, exposure * 0.01, Shutter::Open)[15 * 40 + 20] / 0.05;
         let fw = e_lin / fill * 1.0001;
-        let text = toml("", "", "shot_noise = false\nnonlinearity = 0.01")
-            .replace("full_well = 1.0e9", &format!("full_well = {fw:e}"));
-        let f = facility(&text);
+        let f = quiet("", "", &format!("nonlinearity = 0.01\nfull_well = {fw:e}"));
         uniform(&f, 255);
         let got = capture(&f, exposure * 0.01, Shutter::Open)[15 * 40 + 20] / 0.05;
         let deficit = 1.0 - got / e_lin;
@@ -504,14 +451,13 @@ fn dark_frames_have_bias_dark_current_row_and_read_noise() {
     // gain 1 DN/e⁻, bias 100 DN, dark 1000 e⁻/s over 10 ms (10 e⁻), read
     // noise 3 e⁻, row noise 5 e⁻; the screen at full white with glare on
     // (no light reaches a closed shutter).
-    let f = facility(
-        &toml(
-            "",
-            "",
-            "bias_dn = 100.0\ndark_current = 1000.0\nread_noise = 3.0\nrow_noise = 5.0\nveiling_glare = 0.01",
-        )
-        .replace("gain = 0.05", "gain = 1.0"),
-    );
+    let f = keys(
+        "",
+        "",
+        "bias_dn = 100.0\ndark_current = 1000.0\nread_noise = 3.0\nrow_noise = 5.0\nveiling_glare = 0.01\n\
+         gain = 1.0",
+    )
+    .facility();
     uniform(&f, 255);
     let (w, h, frames) = (40usize, 30usize, 300usize);
     let (mut sum, mut n) = (0.0, 0.0);

@@ -4,62 +4,30 @@
 //! against a capture of a uniform screen; the spectroradiometer's
 //! wavelength error and bin noise.
 
-use std::path::Path;
-
-use optistim::facility::display::Display;
-use optistim::facility::lut::{encode_grey, FlatField};
+use optistim::facility::lut::FlatField;
 use optistim::instruments::intrinsics::CameraIntrinsics;
 use optistim::instruments::SpotMeter;
-use optistim::simfacility::{SimFacility, SimFacilityConfig};
+use optistim::simfacility::SimFacility;
 
-fn toml(seed: u64, extra_camera: &str, extra_meter: &str) -> String {
-    format!(
-        r#"
-seed = {seed}
-[screen]
-resolution = [64, 48]
-refresh_hz = 60.0
-pixel_pitch = 1.0e-4
-gamma = 2.2
-max_radiance = 2.0
-black_level = 0.01
-spectrum = "{spectrum}"
-[collimator]
-focal_length = 0.5
-transmission = 0.8
-[camera]
-resolution = [40, 30]
-fx = 4000.0
-fy = 4100.0
-cx = 20.0
-cy = 15.0
-k1 = -0.1
-focal_length = 0.05
-f_number = 4.0
-band_nm = [450.0, 820.0]
-sun_spectrum = "blackbody"
-exposure = 0.01
-gain = 0.05
-full_well = 1.0e9
-bits = 16
-shot_noise = false
-vignetting = 0.05
-prnu = 0.01
-{extra_camera}
-[meter]
-response = "flat"
-spot_center_px = [32.0, 24.0]
-spot_radius_px = 5.0
-{extra_meter}
-"#,
-        spectrum = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("data/display/lcd_white_apple_studio_display.csv")
-            .display()
-    )
+mod common;
+use common::simfacility::{lcd_white_spectrum, show_uniform, SimToml};
+
+/// The small facility with the bundled LCD white spectrum, a 4100 px fy,
+/// barrel distortion, vignetting and PRNU, no shot noise.
+fn keys(seed: u64, extra_meter: &str) -> SimToml {
+    let spectrum = format!("spectrum = \"{}\"", lcd_white_spectrum().display());
+    SimToml::quiet()
+        .seed(seed)
+        .with("screen", &spectrum)
+        .with(
+            "camera",
+            "fy = 4100.0\nk1 = -0.1\nvignetting = 0.05\nprnu = 0.01",
+        )
+        .with("meter", extra_meter)
 }
 
 fn facility(seed: u64) -> SimFacility {
-    SimFacility::new(SimFacilityConfig::parse(&toml(seed, "", ""), "t.toml").unwrap()).unwrap()
+    keys(seed, "").facility()
 }
 
 /// rms of `v`.
@@ -114,10 +82,7 @@ fn true_responsivity_is_what_a_uniform_screen_gives() {
     // DN/s over the region per W m⁻² sr⁻¹ of camera-effective radiance at
     // the camera's entrance (τ × the screen's, uniform here).
     let f = facility(1);
-    let (w, h) = f.display().size();
-    f.display()
-        .present(&vec![encode_grey(200, 8); w * h])
-        .unwrap();
+    show_uniform(&f, 200);
     let t = 0.01;
     let frame = f.capture_last(t).unwrap().data;
     let (truth, [x0, y0, rw, rh]) = f.true_responsivity();
@@ -216,16 +181,12 @@ fn solve4(mut a: [[f64; 4]; 4], mut b: [f64; 4]) -> [f64; 4] {
 fn spectroradiometer_has_a_wavelength_error_and_bin_noise() {
     // 0.3 nm scale error, 0.2 % per-bin noise: the reading at nominal λ is
     // the true spectrum at λ + 0.3 nm × (1 + 0.002 N(0, 1)).
-    let text = toml(
+    let f = keys(
         2,
-        "",
         "spectrometer = true\nwavelength_error_nm = 0.3\nspectrum_noise = 0.002",
-    );
-    let f = SimFacility::new(SimFacilityConfig::parse(&text, "t.toml").unwrap()).unwrap();
-    let (w, h) = f.display().size();
-    f.display()
-        .present(&vec![encode_grey(255, 8); w * h])
-        .unwrap();
+    )
+    .facility();
+    show_uniform(&f, 255);
     let spectrum = f.meter().measure().unwrap().spectrum.unwrap();
     let peak = spectrum.iter().map(|p| p.1).fold(0.0, f64::max);
     let (mut shifted, mut unshifted) = (Vec::new(), Vec::new());

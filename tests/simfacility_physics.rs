@@ -6,69 +6,25 @@
 use optistim::facility::display::Display;
 use optistim::facility::lut::encode_grey;
 use optistim::instruments::{Camera, CaptureRequest, SpotMeter};
-use optistim::simfacility::{SimFacility, SimFacilityConfig};
+use optistim::simfacility::SimFacility;
+
+mod common;
+use common::simfacility::{show_uniform as uniform, SimToml};
 
 const H: f64 = 6.626_070_15e-34;
 const C: f64 = 299_792_458.0;
 const KB: f64 = 1.380_649e-23;
 
-/// A small facility: 64×48 screen, flat spectrum, ideal collimator unless
-/// `extra` overrides, 40×30 camera; every noise and non-uniformity off.
-fn toml(extra_collimator: &str, extra_camera: &str) -> String {
-    let shot = if extra_camera.contains("shot_noise") {
-        ""
-    } else {
-        "shot_noise = false"
-    };
-    format!(
-        r#"
-seed = 7
-[screen]
-resolution = [64, 48]
-refresh_hz = 60.0
-pixel_pitch = 1.0e-4
-gamma = 2.2
-max_radiance = 2.0
-black_level = 0.01
-spectrum = "flat"
-[collimator]
-focal_length = 0.5
-transmission = 0.8
-{extra_collimator}
-[camera]
-resolution = [40, 30]
-fx = 4000.0
-fy = 4000.0
-cx = 20.0
-cy = 15.0
-focal_length = 0.05
-f_number = 4.0
-band_nm = [450.0, 820.0]
-sun_spectrum = "blackbody"
-exposure = 0.01
-gain = 0.05
-full_well = 1.0e9
-bits = 16
-{shot}
-{extra_camera}
-[meter]
-response = "flat"
-spot_center_px = [32.0, 24.0]
-spot_radius_px = 5.0
-"#
-    )
+/// The small facility (every noise and non-uniformity off) with extra
+/// collimator and camera keys.
+fn keys(extra_collimator: &str, extra_camera: &str) -> SimToml {
+    SimToml::quiet()
+        .with("collimator", extra_collimator)
+        .with("camera", extra_camera)
 }
 
 fn facility(extra_collimator: &str, extra_camera: &str) -> SimFacility {
-    let text = toml(extra_collimator, extra_camera);
-    let cfg = SimFacilityConfig::parse(&text, "test.toml").unwrap();
-    SimFacility::new(cfg).unwrap()
-}
-
-fn uniform(f: &SimFacility, level: u32) {
-    let mut d = f.display();
-    let (w, h) = d.size();
-    d.present(&vec![encode_grey(level, 8); w * h]).unwrap();
+    keys(extra_collimator, extra_camera).facility()
 }
 
 fn capture(f: &SimFacility, exposure: f64) -> Vec<f32> {
@@ -292,8 +248,7 @@ fn same_seed_same_frames_other_seed_other_frames() {
     assert_eq!(a1, b1);
     assert_eq!(a2, b2);
     assert_ne!(a1, a2, "two captures must have independent noise");
-    let text = toml("", noisy).replace("seed = 7", "seed = 8");
-    let c = SimFacility::new(SimFacilityConfig::parse(&text, "t.toml").unwrap()).unwrap();
+    let c = keys("", noisy).seed(8).facility();
     uniform(&c, 200);
     assert_ne!(capture(&c, 0.01), a1);
     assert_ne!(c.camera_flat(), a.camera_flat());
@@ -400,11 +355,12 @@ fn warm_up_and_drift_follow_the_virtual_clock() {
     // Reading of full white at virtual time t (integration 0.1 s ending at
     // t + 0.1, taken at its middle): 2 W m⁻² sr⁻¹ × (1 − a e^(−t/τ)) ×
     // (1 + d t / 3600), with a = 5 %, τ = 100 s, d = 1 %/h.
-    let cfg = toml("", "").replace(
-        "spectrum = \"flat\"",
-        "spectrum = \"flat\"\nwarmup_amplitude = 0.05\nwarmup_time_constant = 100.0\ndrift_per_hour = 0.01",
-    );
-    let f = SimFacility::new(SimFacilityConfig::parse(&cfg, "t.toml").unwrap()).unwrap();
+    let f = keys("", "")
+        .with(
+            "screen",
+            "warmup_amplitude = 0.05\nwarmup_time_constant = 100.0\ndrift_per_hour = 0.01",
+        )
+        .facility();
     uniform(&f, 255);
     for t in [10.0, 100.0, 3600.0] {
         f.advance(t - f.now());
@@ -424,11 +380,9 @@ fn the_black_leak_is_shifted_toward_the_blue() {
     // spectrum shifted 10 nm blue, so the camera band (450–820 nm) sees
     // 450–770 nm of it. Level 0 is the leak alone; full white is 99 %
     // channels (the unshifted white) plus the leak.
-    let cfg = toml("", "").replace(
-        "spectrum = \"flat\"",
-        "spectrum = \"flat\"\nspectral_shift_nm = 10.0",
-    );
-    let f = SimFacility::new(SimFacilityConfig::parse(&cfg, "t.toml").unwrap()).unwrap();
+    let f = keys("", "")
+        .with("screen", "spectral_shift_nm = 10.0")
+        .facility();
     let sun_ratio = planck_band(|_| 1.0) / planck_band(|l| l / (H * C));
     let shifted = (770e-9f64.powi(2) - 450e-9f64.powi(2)) / (2.0 * H * C);
     let a = 2.0 / 400e-9;
@@ -445,11 +399,9 @@ fn screen_non_uniformity_reaches_the_camera() {
     // 10 % corner falloff, +4 % gradient to the right: the camera's DN
     // ratio between two pixels is the ratio of U at the screen points they
     // see (the etendue ratio divided out).
-    let cfg = toml("", "").replace(
-        "spectrum = \"flat\"",
-        "spectrum = \"flat\"\nfalloff = 0.1\ngradient = [0.04, 0.0]",
-    );
-    let f = SimFacility::new(SimFacilityConfig::parse(&cfg, "t.toml").unwrap()).unwrap();
+    let f = keys("", "")
+        .with("screen", "falloff = 0.1\ngradient = [0.04, 0.0]")
+        .facility();
     uniform(&f, 255);
     let dn = capture(&f, 0.01);
     let u = |x: f64, y: f64| {

@@ -8,7 +8,6 @@
 //! ideal collimator; the closed loop with calibrated files is the
 //! calibration's test.
 
-use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Instant;
@@ -21,7 +20,10 @@ use optistim::facility::trajectory::Trajectory;
 use optistim::render::detector::{render_scene, PixelGeometry};
 use optistim::render::Renderer;
 use optistim::scene::Scene;
-use optistim::simfacility::{SimFacility, SimFacilityConfig, SimScreen};
+use optistim::simfacility::{SimFacility, SimScreen};
+
+mod common;
+use common::simfacility::{lcd_white_spectrum, SimToml};
 
 /// Moon radius 1737.4 km at 2.78e8 m, camera f = 4000 px: 25 px radius.
 const RANGE: f64 = 2.78e8;
@@ -97,46 +99,29 @@ state_timeout = 5.0
 
 /// The same screen and camera as physics: an LCD spectrum (not the Sun's),
 /// no noise, no non-uniformity, an ideal aligned collimator.
-fn sim_toml() -> String {
-    let white = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("data/display/lcd_white_apple_studio_display.csv");
-    format!(
-        r#"
-seed = 3
-[screen]
-resolution = [320, 240]
-refresh_hz = 60.0
-pixel_pitch = 1.0e-4
-gamma = 2.2
-max_radiance = 1.0
-black_level = 0.0005
-spectrum = "{}"
-[collimator]
-focal_length = 0.8
-transmission = {TAU}
-[camera]
-resolution = [96, 96]
-fx = 4000.0
-fy = 4000.0
-cx = 48.0
-cy = 48.0
-focal_length = 0.04
-f_number = 2.5
-band_nm = [450.0, 820.0]
-sun_spectrum = "blackbody"
-exposure = 2.0e-3
-gain = 0.05
-full_well = 1.0e9
-bits = 16
-shot_noise = false
-supersample = 4
-[meter]
-response = "flat"
-spot_center_px = [160.0, 120.0]
-spot_radius_px = 10.0
-"#,
-        white.display()
-    )
+fn sim_facility() -> SimFacility {
+    let spectrum = format!("spectrum = \"{}\"", lcd_white_spectrum().display());
+    SimToml::quiet()
+        .seed(3)
+        .with(
+            "screen",
+            "resolution = [320, 240]\nmax_radiance = 1.0\nblack_level = 0.0005",
+        )
+        .with("screen", &spectrum)
+        .with(
+            "collimator",
+            &format!("focal_length = 0.8\ntransmission = {TAU}"),
+        )
+        .with(
+            "camera",
+            "resolution = [96, 96]\ncx = 48.0\ncy = 48.0\nfocal_length = 0.04\nf_number = 2.5\n\
+             exposure = 2.0e-3\nsupersample = 4",
+        )
+        .with(
+            "meter",
+            "spot_center_px = [160.0, 120.0]\nspot_radius_px = 10.0",
+        )
+        .facility()
 }
 
 /// A display that captures what the simulated camera sees after each
@@ -175,8 +160,7 @@ fn sim_camera_through_a_true_lut_matches_render() {
     )
     .unwrap();
     std::fs::write(p.join("facility.toml"), facility_toml()).unwrap();
-    let facility =
-        SimFacility::new(SimFacilityConfig::parse(&sim_toml(), "sim.toml").unwrap()).unwrap();
+    let facility = sim_facility();
     // The LUT of the screen's true camera-effective radiance at its centre.
     let mut lut = String::from("drive_level,radiance_w_m2_sr\n");
     for level in 0..256 {

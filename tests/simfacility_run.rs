@@ -11,9 +11,11 @@ use optistim::instruments::config::{open_spot_meter, SpotMeterConfig};
 use optistim::simfacility::pty::PtyMeter;
 use optistim::simfacility::{SimFacility, SimFacilityConfig};
 
+mod common;
+use common::simfacility::{bundled_path, run_on_sim_facility};
+
 fn bundled() -> SimFacilityConfig {
-    SimFacilityConfig::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/simfacility.toml"))
-        .unwrap()
+    SimFacilityConfig::load(bundled_path()).unwrap()
 }
 
 fn meter_config(port: &Path, format: &str, unit_scale: f64) -> SpotMeterConfig {
@@ -145,21 +147,8 @@ fn spectroradiometer_over_a_pty_sends_the_screen_spectrum() {
 #[test]
 fn run_on_the_simulated_facility_writes_camera_frames() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_optistim"))
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .args([
-            "run",
-            "configs/facility.toml",
-            "--frames",
-            "3",
-            "--display",
-            "sim-facility",
-            "--sim-facility",
-            "configs/simfacility.toml",
-            "--capture-every",
-            "2",
-            "--captures",
-        ])
+    let out = run_on_sim_facility(3, 2)
+        .arg("--captures")
         .arg(tmp.path().join("cap"))
         .arg("--log")
         .arg(tmp.path().join("f.jsonl"))

@@ -43,19 +43,27 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
+use crate::placeholders::{self, Part};
 
-#[derive(Debug, Clone, PartialEq, Eq)]
-enum Segment {
-    Lit(String),
+/// A field of the frame command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Field {
     Id,
     T,
     ExposureUs,
 }
 
+/// The template's placeholders, in the order the errors list them.
+const FIELDS: [(&str, Field); 3] = [
+    ("id", Field::Id),
+    ("t", Field::T),
+    ("exposure_us", Field::ExposureUs),
+];
+
 /// A parsed command template (see the module docs).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct CommandTemplate {
-    segments: Vec<Segment>,
+    segments: Vec<Part<Field>>,
 }
 
 /// Values substituted into a [`CommandTemplate`].
@@ -72,63 +80,8 @@ pub struct FrameCommand {
 impl CommandTemplate {
     /// Parses a template; unknown or unclosed placeholders are errors.
     pub fn parse(template: &str) -> Result<CommandTemplate> {
-        let mut segments = Vec::new();
-        let mut lit = String::new();
-        let mut chars = template.chars().peekable();
-        while let Some(c) = chars.next() {
-            match c {
-                '{' if chars.peek() == Some(&'{') => {
-                    chars.next();
-                    lit.push('{');
-                }
-                '}' if chars.peek() == Some(&'}') => {
-                    chars.next();
-                    lit.push('}');
-                }
-                '{' => {
-                    let mut name = String::new();
-                    loop {
-                        match chars.next() {
-                            Some('}') => break,
-                            Some(ch) => name.push(ch),
-                            None => {
-                                return Err(Error::invalid(
-                                    "sync.template",
-                                    format!("unclosed placeholder `{{{name}`"),
-                                ))
-                            }
-                        }
-                    }
-                    let seg = match name.as_str() {
-                        "id" => Segment::Id,
-                        "t" => Segment::T,
-                        "exposure_us" => Segment::ExposureUs,
-                        _ => {
-                            return Err(Error::invalid(
-                                "sync.template",
-                                format!(
-                                    "unknown placeholder `{{{name}}}` (known: {{id}}, {{t}}, {{exposure_us}})"
-                                ),
-                            ))
-                        }
-                    };
-                    if !lit.is_empty() {
-                        segments.push(Segment::Lit(std::mem::take(&mut lit)));
-                    }
-                    segments.push(seg);
-                }
-                '}' => {
-                    return Err(Error::invalid(
-                        "sync.template",
-                        "unmatched `}` (write `}}` for a literal brace)",
-                    ))
-                }
-                _ => lit.push(c),
-            }
-        }
-        if !lit.is_empty() {
-            segments.push(Segment::Lit(lit));
-        }
+        let segments = placeholders::parse(template, &FIELDS)
+            .map_err(|e| Error::invalid("sync.template", e))?;
         Ok(CommandTemplate { segments })
     }
 
@@ -137,10 +90,10 @@ impl CommandTemplate {
         let mut out = String::new();
         for s in &self.segments {
             match s {
-                Segment::Lit(l) => out.push_str(l),
-                Segment::Id => out.push_str(&cmd.id.to_string()),
-                Segment::T => out.push_str(&format!("{:.6}", cmd.t)),
-                Segment::ExposureUs => out.push_str(&cmd.exposure_us.to_string()),
+                Part::Lit(l) => out.push_str(l),
+                Part::Field(Field::Id) => out.push_str(&cmd.id.to_string()),
+                Part::Field(Field::T) => out.push_str(&format!("{:.6}", cmd.t)),
+                Part::Field(Field::ExposureUs) => out.push_str(&cmd.exposure_us.to_string()),
             }
         }
         out

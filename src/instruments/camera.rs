@@ -19,6 +19,7 @@ use super::frame::RawFrame;
 use super::config::{abbreviate, check_pattern_name, CameraConfig, FrameExtension};
 use super::{Camera, CameraFrame, CaptureRequest};
 use crate::error::{Error, Result};
+use crate::placeholders::{self, Part};
 
 /// Shared by both backends: the config, and turning a file into a frame.
 struct Backend {
@@ -318,14 +319,20 @@ fn run(argv: &[std::ffi::OsString], timeout: Duration) -> std::result::Result<()
     ))
 }
 
-/// One piece of a command-line argument.
-#[derive(Debug, Clone, PartialEq, Eq)]
-enum Piece {
-    Lit(String),
+/// A field of a command-line argument.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Field {
     ExposureUs,
     Path,
     Pattern,
 }
+
+/// The arguments' placeholders, in the order the errors list them.
+const FIELDS: [(&str, Field); 3] = [
+    ("exposure_us", Field::ExposureUs),
+    ("path", Field::Path),
+    ("pattern", Field::Pattern),
+];
 
 /// A capture command template split into argv (no shell): whitespace
 /// separates arguments; `{exposure_us}`, `{path}`, `{pattern}` are
@@ -333,7 +340,7 @@ enum Piece {
 /// spaces; `{{`, `}}` are literal braces.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct CommandLine {
-    args: Vec<Vec<Piece>>,
+    args: Vec<Vec<Part<Field>>>,
 }
 
 /// Values substituted into a [`CommandLine`].
@@ -352,12 +359,12 @@ impl CommandLine {
     pub fn parse(template: &str) -> std::result::Result<CommandLine, String> {
         let args = template
             .split_whitespace()
-            .map(parse_arg)
+            .map(|arg| placeholders::parse(arg, &FIELDS))
             .collect::<std::result::Result<Vec<_>, _>>()?;
         if args.is_empty() {
             return Err("empty command".into());
         }
-        if !matches!(args[0].as_slice(), [Piece::Lit(_)]) {
+        if !matches!(args[0].as_slice(), [Part::Lit(_)]) {
             return Err("the program name must be literal text".into());
         }
         Ok(CommandLine { args })
@@ -371,64 +378,14 @@ impl CommandLine {
                 let mut a = std::ffi::OsString::new();
                 for p in pieces {
                     match p {
-                        Piece::Lit(s) => a.push(s),
-                        Piece::ExposureUs => a.push(v.exposure_us.to_string()),
-                        Piece::Path => a.push(v.path.as_os_str()),
-                        Piece::Pattern => a.push(v.pattern),
+                        Part::Lit(s) => a.push(s),
+                        Part::Field(Field::ExposureUs) => a.push(v.exposure_us.to_string()),
+                        Part::Field(Field::Path) => a.push(v.path.as_os_str()),
+                        Part::Field(Field::Pattern) => a.push(v.pattern),
                     }
                 }
                 a
             })
             .collect()
     }
-}
-
-fn parse_arg(arg: &str) -> std::result::Result<Vec<Piece>, String> {
-    let mut pieces = Vec::new();
-    let mut lit = String::new();
-    let mut chars = arg.chars().peekable();
-    while let Some(c) = chars.next() {
-        match c {
-            '{' if chars.peek() == Some(&'{') => {
-                chars.next();
-                lit.push('{');
-            }
-            '}' if chars.peek() == Some(&'}') => {
-                chars.next();
-                lit.push('}');
-            }
-            '{' => {
-                let mut name = String::new();
-                let mut closed = false;
-                for c in chars.by_ref() {
-                    if c == '}' {
-                        closed = true;
-                        break;
-                    }
-                    name.push(c);
-                }
-                let piece = match (closed, name.as_str()) {
-                    (true, "exposure_us") => Piece::ExposureUs,
-                    (true, "path") => Piece::Path,
-                    (true, "pattern") => Piece::Pattern,
-                    (false, _) => return Err(format!("unclosed placeholder `{{{name}`")),
-                    _ => {
-                        return Err(format!(
-                            "unknown placeholder `{{{name}}}` (known: {{exposure_us}}, {{path}}, {{pattern}})"
-                        ))
-                    }
-                };
-                if !lit.is_empty() {
-                    pieces.push(Piece::Lit(std::mem::take(&mut lit)));
-                }
-                pieces.push(piece);
-            }
-            '}' => return Err("unmatched `}` (write `}}` for a literal brace)".into()),
-            c => lit.push(c),
-        }
-    }
-    if !lit.is_empty() {
-        pieces.push(Piece::Lit(lit));
-    }
-    Ok(pieces)
 }

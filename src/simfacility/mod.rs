@@ -28,6 +28,7 @@
 pub mod camera;
 pub mod clock;
 pub mod config;
+pub mod instruments;
 pub mod lab;
 pub mod noise;
 pub mod optics;

@@ -356,12 +356,14 @@ pub fn visible_cap_irradiance(
     total * radius * radius
 }
 
+pub mod ptc;
+pub mod ring_dem;
+pub mod simfacility;
+
 /// The machine, shared between the tests of one binary. Tests that judge
 /// wall-clock time (pacing, latency, "does not block") take it exclusively,
 /// so the other tests of the binary, which cargo runs in parallel, cannot
 /// slow them on a two-core runner; every other test takes it shared.
-pub mod ring_dem;
-
 pub mod machine {
     use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
