@@ -72,8 +72,8 @@ impl SimToml {
         )
     }
 
-    /// `small()` with every noise and non-uniformity the defaults leave on
-    /// turned off (shot noise).
+    /// `small()` without shot noise, the one noise its defaults turn on:
+    /// no noise and no non-uniformity.
     pub fn quiet() -> Self {
         Self::small().with("camera", "shot_noise = false")
     }
