@@ -100,12 +100,6 @@ impl SimToml {
         self
     }
 
-    /// The same without `key` in `section`.
-    pub fn without(mut self, section: &str, key: &str) -> Self {
-        self.section(section).retain(|(k, _)| k != key);
-        self
-    }
-
     fn section(&mut self, name: &str) -> &mut Vec<(String, String)> {
         let at = match self.sections.iter().position(|(n, _)| n == name) {
             Some(at) => at,
