@@ -152,14 +152,7 @@ fn radiometric_once(
     let (mut rig, mut meter) = (SimInstruments::new(&sim), sim.meter());
     let mut darks = DarkBank::shutter(4);
     let mut inst = rig.lend(Some(&mut meter), &mut darks);
-    let meter_response = match cfg
-        .meter
-        .as_ref()
-        .and_then(|m| m.spectral_response.as_ref())
-    {
-        Some(p) => Some(Table::from_csv(p)?),
-        None => None,
-    };
+    let meter_response = cfg.meter_response()?;
     let screen_spectrum = match &cfg.screen_spectrum {
         Some(p) => Some(table_spectrum(&Table::from_csv(p)?)),
         None => None,

@@ -377,18 +377,19 @@ fn panel_on(
     Ok(())
 }
 
+/// The linear axis range of the finite x of `series`' points.
+fn x_span<'a>(series: impl Iterator<Item = &'a Series>) -> (f64, f64) {
+    let xs = series.flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
+    span(xs, false)
+}
+
 /// Writes a curve figure (main panel, optional residual panel) as PNG.
 pub fn curve_figure(path: impl AsRef<Path>, fig: &CurveFigure) -> Result<()> {
     let path = path.as_ref();
     ensure_font();
     draw_png(path, fig.size, |root| {
-        let xs = fig
-            .main
-            .series
-            .iter()
-            .chain(fig.residuals.iter().flat_map(|p| p.series.iter()))
-            .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
-        let x = span(xs, false);
+        let residuals = fig.residuals.iter().flat_map(|p| p.series.iter());
+        let x = x_span(fig.main.series.iter().chain(residuals));
         match &fig.residuals {
             Some(res) => {
                 let (top, bottom) = root.split_vertically(fig.size.1 * 65 / 100);
@@ -654,12 +655,7 @@ pub fn curve_and_histogram(path: impl AsRef<Path>, fig: &CurveAndHistogram) -> R
     let path = path.as_ref();
     ensure_font();
     draw_png(path, fig.size, |root| {
-        let xs = fig
-            .main
-            .series
-            .iter()
-            .flat_map(|s| s.points.iter().map(|p| p.0).filter(|x| x.is_finite()));
-        let x = span(xs, false);
+        let x = x_span(fig.main.series.iter());
         let (top, bottom) = root.split_vertically(fig.size.1 * 58 / 100);
         panel_on(&top, Some(&fig.title), x, &fig.x_label, &fig.main, path)?;
         histogram_on(&bottom, &fig.histogram, path)?;

@@ -481,6 +481,22 @@ fn flat_field_recovers_the_simulated_screen_non_uniformity() {
     );
 }
 
+/// The direction (tan x, tan y) of camera pixel (x, y) for a camera of
+/// focal length `f` px, principal point (c, c) and radial `k1`: its
+/// intrinsics inverted here by fixed-point iteration.
+fn pixel_direction(f: f64, c: f64, k1: f64) -> impl Fn(f64, f64) -> (f64, f64) {
+    move |x: f64, y: f64| {
+        let (xd, yd) = ((x - c) / f, (y - c) / f);
+        let (mut tx, mut ty) = (xd, yd);
+        for _ in 0..50 {
+            let r = 1.0 + k1 * (tx * tx + ty * ty);
+            tx = xd / r;
+            ty = yd / r;
+        }
+        (tx, ty)
+    }
+}
+
 /// The flat routine on a 128 × 128 camera over the bundled 6° field, with
 /// the camera's focal length in the intrinsics scaled by `f_scale` and its
 /// principal point moved by `dc` px (the truth: 1, 0).
@@ -511,18 +527,7 @@ fn sim_flat(f_scale: f64, dc: f64) -> (SimFacility, Vec<f32>, flat::FlatReport) 
     }
     std::fs::write(dir.path().join("g.csv"), g).unwrap();
     let geometry = GeometryCalibration::load(dir.path().join("g.csv"), (1920, 1080)).unwrap();
-    // The camera's intrinsics, inverted here by fixed-point iteration.
-    let (f, c, k1) = (1280.925 * f_scale, 64.0 + dc, -0.05);
-    let direction = move |x: f64, y: f64| {
-        let (xd, yd) = ((x - c) / f, (y - c) / f);
-        let (mut tx, mut ty) = (xd, yd);
-        for _ in 0..50 {
-            let r = 1.0 + k1 * (tx * tx + ty * ty);
-            tx = xd / r;
-            ty = yd / r;
-        }
-        (tx, ty)
-    };
+    let direction = pixel_direction(1280.925 * f_scale, 64.0 + dc, -0.05);
     let cfg = CalibrateConfig::parse(CALIBRATE, "c.toml", 8).unwrap();
     let setup = FlatSetup {
         cfg: &cfg,
@@ -604,17 +609,7 @@ fn verify_on(
 ) -> VerifyReport {
     let cfg = CalibrateConfig::parse(CALIBRATE, "calibrate.toml", 8).unwrap();
     let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
-    let (f, c, k1) = (10247.4, 64.0, -0.05);
-    let direction = move |x: f64, y: f64| {
-        let (xd, yd) = ((x - c) / f, (y - c) / f);
-        let (mut tx, mut ty) = (xd, yd);
-        for _ in 0..50 {
-            let r = 1.0 + k1 * (tx * tx + ty * ty);
-            tx = xd / r;
-            ty = yd / r;
-        }
-        (tx, ty)
-    };
+    let direction = pixel_direction(10247.4, 64.0, -0.05);
     let setup = VerifySetup {
         cfg: &cfg,
         lut,

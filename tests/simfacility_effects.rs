@@ -11,7 +11,7 @@ use optistim::instruments::{Camera, CaptureRequest, Shutter};
 use optistim::simfacility::SimFacility;
 
 mod common;
-use common::simfacility::{show_uniform as uniform, SimToml};
+use common::simfacility::{gaussian_dot_frame, show_uniform as uniform, SimToml};
 
 const H: f64 = 6.626_070_15e-34;
 const C: f64 = 299_792_458.0;
@@ -341,15 +341,7 @@ fn collimator_decentring_and_thin_prism_follow_the_formula() {
     // unit tan, centre (20, 15)).
     let (w, h) = (64usize, 48usize);
     for (du, dv) in [(30usize, 20usize), (40, 30), (22, 14)] {
-        let mut frame = vec![encode_grey(0, 8); w * h];
-        for y in dv - 7..dv + 7 {
-            for x in du - 7..du + 7 {
-                let r2 =
-                    (x as f64 + 0.5 - du as f64).powi(2) + (y as f64 + 0.5 - dv as f64).powi(2);
-                let g = (-r2 / 8.0).exp();
-                frame[y * w + x] = encode_grey((255.0 * g.powf(1.0 / 2.2)).round() as u32, 8);
-            }
-        }
+        let frame = gaussian_dot_frame(w, h, (du, dv));
         show(&f, &frame);
         let dn = capture(&f, 0.01, Shutter::Open);
         uniform(&f, 0);

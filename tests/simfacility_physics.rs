@@ -9,7 +9,7 @@ use optistim::instruments::{Camera, CaptureRequest, SpotMeter};
 use optistim::simfacility::SimFacility;
 
 mod common;
-use common::simfacility::{show_uniform as uniform, SimToml};
+use common::simfacility::{gaussian_dot_frame, show_uniform as uniform, SimToml};
 
 const H: f64 = 6.626_070_15e-34;
 const C: f64 = 299_792_458.0;
@@ -156,15 +156,7 @@ fn a_dot_lands_where_the_projection_predicts() {
         // A Gaussian blob (σ = 2 screen px, radiance above black ∝ the
         // Gaussian) centred on the pixel corner (du, dv): well sampled, so
         // its centroid is unbiased by the pixel grid.
-        let mut frame = vec![encode_grey(0, 8); w * h];
-        for y in dv - 7..dv + 7 {
-            for x in du - 7..du + 7 {
-                let r2 =
-                    (x as f64 + 0.5 - du as f64).powi(2) + (y as f64 + 0.5 - dv as f64).powi(2);
-                let g = (-r2 / 8.0).exp();
-                frame[y * w + x] = encode_grey((255.0 * g.powf(1.0 / 2.2)).round() as u32, 8);
-            }
-        }
+        let frame = gaussian_dot_frame(w, h, (du, dv));
         f.display().present(&frame).unwrap();
         let dn = capture(&f, 0.01);
         let bg = {

@@ -48,6 +48,7 @@ use serde::Deserialize;
 
 use crate::error::{toml_message, Error, Result};
 use crate::instruments::config::{CameraConfig, SpotMeterConfig};
+use crate::radiometry::spectrum::Table;
 
 /// Largest number of levels (a 10-bit display has 1024).
 pub const MAX_LEVELS: usize = 1024;
@@ -291,6 +292,16 @@ impl CalibrateConfig {
         let mut cfg = CalibrateConfig::parse(&text, path, bits)?;
         cfg.resolve_paths(path.parent().unwrap_or(Path::new("")));
         Ok(cfg)
+    }
+
+    /// The meter's spectral response, read from the file
+    /// `[calibrate.meter] spectral_response` names (None without one).
+    pub fn meter_response(&self) -> Result<Option<Table>> {
+        let path = self
+            .meter
+            .as_ref()
+            .and_then(|m| m.spectral_response.as_ref());
+        path.map(|p| Table::from_csv(p)).transpose()
     }
 
     /// Parses the `[calibrate]` table out of the whole facility file text.

@@ -282,14 +282,7 @@ fn run_radiometric(
     ckpt: &mut Checkpoint,
 ) -> Result<()> {
     let scene = Scene::from_file(&fac.scenario.scene)?;
-    let meter_response = match cfg
-        .meter
-        .as_ref()
-        .and_then(|m| m.spectral_response.as_ref())
-    {
-        Some(p) => Some(Table::from_csv(p)?),
-        None => None,
-    };
+    let meter_response = cfg.meter_response()?;
     let spectral = CameraSpectral::from_scene(&scene);
     let screen_spectrum = match &cfg.screen_spectrum {
         Some(p) => {

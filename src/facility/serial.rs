@@ -43,6 +43,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
+use crate::instruments::spot_meter::is_timeout;
 use crate::placeholders::{self, Part};
 
 /// A field of the frame command.
@@ -245,15 +246,6 @@ fn open_port(o: &SerialOptions) -> std::result::Result<Box<dyn serialport::Seria
         }
     }
     Ok(port)
-}
-
-fn is_timeout(e: &std::io::Error) -> bool {
-    matches!(
-        e.kind(),
-        std::io::ErrorKind::TimedOut
-            | std::io::ErrorKind::WouldBlock
-            | std::io::ErrorKind::Interrupted
-    )
 }
 
 impl SerialPortSync {

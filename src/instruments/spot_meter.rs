@@ -252,7 +252,9 @@ pub fn serve(
     Ok(())
 }
 
-fn is_timeout(e: &std::io::Error) -> bool {
+/// Whether a serial read or write error only means "nothing yet" (the
+/// port's timeout, or an interrupted call): the caller tries again.
+pub(crate) fn is_timeout(e: &std::io::Error) -> bool {
     matches!(
         e.kind(),
         std::io::ErrorKind::TimedOut

@@ -72,8 +72,8 @@ impl SimToml {
         )
     }
 
-    /// `small()` with every noise and non-uniformity the defaults leave on
-    /// turned off (shot noise).
+    /// `small()` without shot noise, the one noise its defaults turn on:
+    /// no noise and no non-uniformity.
     pub fn quiet() -> Self {
         Self::small().with("camera", "shot_noise = false")
     }
@@ -97,12 +97,6 @@ impl SimToml {
                 None => keys.push((key, value)),
             }
         }
-        self
-    }
-
-    /// The same without `key` in `section`.
-    pub fn without(mut self, section: &str, key: &str) -> Self {
-        self.section(section).retain(|(k, _)| k != key);
         self
     }
 
@@ -150,6 +144,21 @@ pub fn show_uniform(f: &SimFacility, level: u32) {
     let mut d = f.display();
     let (w, h) = d.size();
     d.present(&vec![encode_grey(level, 8); w * h]).unwrap();
+}
+
+/// A `w` × `h` screen frame, black but for a Gaussian blob (σ = 2 screen
+/// px, radiance above black ∝ the Gaussian through the γ 2.2 drive)
+/// centred on the pixel corner (du, dv), within 7 px of it.
+pub fn gaussian_dot_frame(w: usize, h: usize, (du, dv): (usize, usize)) -> Vec<u32> {
+    let mut frame = vec![encode_grey(0, 8); w * h];
+    for y in dv - 7..dv + 7 {
+        for x in du - 7..du + 7 {
+            let r2 = (x as f64 + 0.5 - du as f64).powi(2) + (y as f64 + 0.5 - dv as f64).powi(2);
+            let g = (-r2 / 8.0).exp();
+            frame[y * w + x] = encode_grey((255.0 * g.powf(1.0 / 2.2)).round() as u32, 8);
+        }
+    }
+    frame
 }
 
 /// `optistim run configs/facility.toml --frames N` on the bundled
