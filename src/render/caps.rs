@@ -94,9 +94,9 @@ impl Weight {
 pub struct CornerRow {
     pos: Vec<(f64, f64)>,
     shape: Vec<f64>,
-    /// Whether the camera sees each corner (only where the frame cuts
-    /// caps across occlusion edges, `render::occlusion`).
-    seen: Vec<bool>,
+    /// How the camera sees each corner (only where the frame cuts caps
+    /// across occlusion edges, `render::occlusion`).
+    sight: Vec<super::occlusion::Sight>,
 }
 
 /// A rectangle of the (t, s) square still to be visited or to be cut.
@@ -202,6 +202,9 @@ pub struct Frame<'a> {
     /// The displacement (height [m] and its slopes) this frame applies: the
     /// body's, unless the frame skips its relief (`render::relief`).
     pub height: Option<&'a (EquirectMap, EquirectMap, EquirectMap)>,
+    /// Marches kept across the sub-bands of one frame, when its renderer
+    /// keeps them ([`super::sight_memo`]).
+    pub sight_memo: Option<&'a super::sight_memo::SightMemo>,
 }
 
 /// Radius of the solar photosphere [m].
@@ -444,10 +447,17 @@ impl Frame<'_> {
 
     /// Project one row of cap corners (θ fixed, s from s0 in n steps of
     /// ds) into `out`; a corner behind the camera is NaN.
-    fn corner_row(&self, theta: f64, s0: f64, ds: f64, n: u32, out: &mut CornerRow) {
+    fn corner_row(
+        &self,
+        theta: f64,
+        (s0, ds): (f64, f64),
+        n: u32,
+        out: &mut CornerRow,
+        tape: &mut super::sight_memo::SightTape,
+    ) {
         out.pos.clear();
         out.shape.clear();
-        out.seen.clear();
+        out.sight.clear();
         let cut_edges = self.cuts_occlusion_edges();
         let (st, ct) = theta.sin_cos();
         let (lo, hi) = self.lune.phi_range(st);
@@ -479,10 +489,35 @@ impl Frame<'_> {
             let (mu0, mu) = (st * cp, st * (cp * cos_a + sp * sin_a));
             out.shape.push(self.weight.radiance_shape(mu0, mu));
             if cut_edges {
-                out.seen.push(self.seen(DVec3::new(st * cp, st * sp, ct)));
+                out.sight
+                    .push(self.sight_taped(DVec3::new(st * cp, st * sp, ct), tape));
             }
             (sp, cp) = (sp * cd + cp * sd, cp * cd - sp * sd);
         }
+    }
+
+    /// What identifies `leaf` of this view for the sub-band memo
+    /// ([`super::sight_memo::LeafKey`]).
+    fn leaf_key(&self, leaf: &Leaf) -> super::sight_memo::LeafKey {
+        let c = leaf.cell;
+        let [x, y, z] = self.axes_body;
+        let words = [c.t0, c.t1, c.s0, c.s1]
+            .into_iter()
+            .map(f64::to_bits)
+            .chain([
+                leaf.n_t as u64,
+                leaf.n_s as u64,
+                self.shadows.is_some() as u64,
+            ])
+            .chain(
+                [self.lune.camera_local(), x, y, z]
+                    .into_iter()
+                    .flat_map(|v| v.to_array())
+                    .map(f64::to_bits),
+            );
+        let mut key = [0; 19];
+        key.iter_mut().zip(words).for_each(|(k, w)| *k = w);
+        key
     }
 
     /// Integrate and grid every cap of a leaf into `sink`. `rows` is
@@ -510,11 +545,26 @@ impl Frame<'_> {
         let cut_edges = self.cuts_occlusion_edges();
         let mut total = 0.0;
         let [upper, lower] = rows;
-        self.corner_row(self.theta(cell.t0), cell.s0, ds, leaf.n_s, lower);
+        if self.sight_memo.is_some() {
+            sink.tape.start(self.sight_memo, self.leaf_key(leaf));
+        }
+        self.corner_row(
+            self.theta(cell.t0),
+            (cell.s0, ds),
+            leaf.n_s,
+            lower,
+            &mut sink.tape,
+        );
         for a in 0..leaf.n_t {
             std::mem::swap(upper, lower);
             let t_next = cell.t0 + (a + 1) as f64 * dt;
-            self.corner_row(self.theta(t_next), cell.s0, ds, leaf.n_s, lower);
+            self.corner_row(
+                self.theta(t_next),
+                (cell.s0, ds),
+                leaf.n_s,
+                lower,
+                &mut sink.tape,
+            );
             let theta0 = self.theta(cell.t0 + a as f64 * dt);
             let theta1 = self.theta(cell.t0 + (a + 1) as f64 * dt);
             let d_theta = theta1 - theta0;
@@ -553,20 +603,20 @@ impl Frame<'_> {
                 if sink.covers_quad(&quad) {
                     continue;
                 }
-                // Corners that disagree on being seen: an occlusion edge
-                // crosses the cap (`render::occlusion`).
+                // Corners seen and corners hidden by relief: an occlusion
+                // edge crosses the cap (`render::occlusion`).
                 if cut_edges {
-                    let seen = [
-                        upper.seen[b],
-                        upper.seen[b + 1],
-                        lower.seen[b + 1],
-                        lower.seen[b],
+                    let sight = [
+                        upper.sight[b],
+                        upper.sight[b + 1],
+                        lower.sight[b + 1],
+                        lower.sight[b],
                     ];
-                    if seen.iter().any(|&v| v != seen[0]) {
+                    if super::occlusion::crosses_edge(&sight) {
                         let corners = std::array::from_fn(|k| super::occlusion::EdgePoint {
                             pos: quad[k],
                             shape: shape[k],
-                            seen: seen[k],
+                            sight: sight[k],
                         });
                         let s_lo = cell.s0 + b as f64 * ds;
                         total += self.grid_edge_cap(
@@ -654,6 +704,7 @@ impl Frame<'_> {
                 }
             }
         }
+        sink.tape.finish(self.sight_memo);
         total - std::mem::take(&mut sink.skipped)
     }
 
@@ -929,7 +980,11 @@ impl Frame<'_> {
                 radius: self.radius,
                 bound: self.body.relief.height_bound,
             };
-            if relief.clears(n_body * r, v) {
+            let clear = match self.sight_memo {
+                Some(memo) => memo.clears(&relief, n_body * r, v),
+                None => relief.clears(n_body * r, v),
+            };
+            if clear {
                 1.0
             } else {
                 0.0
@@ -1480,6 +1535,9 @@ pub struct Sink<'a> {
     pub skipped: f64,
     /// Caps integrated (not covered by interior pixels).
     pub integrated: u64,
+    /// Sights of the leaf being gridded, kept across a frame's sub-bands
+    /// ([`super::sight_memo`]).
+    pub tape: super::sight_memo::SightTape,
 }
 
 /// Where gridding puts a cap's value: the frame ([`Sink`]) or one cap's
@@ -1831,6 +1889,7 @@ mod tests {
             interior: None,
             skipped: 0.0,
             integrated: 0,
+            tape: Default::default(),
         };
         grid_quad(&mut sink, quad, value);
     }

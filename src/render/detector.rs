@@ -397,6 +397,9 @@ fn render_bands(
             _ => None,
         },
     };
+    if bands.len() > 1 {
+        renderer.begin_sub_bands();
+    }
     for band in bands {
         let model = scene.body.reflectance.at_wavelength(band.centroid);
         let band_model = band_model(&scene.body, &model, band.centroid);
@@ -420,6 +423,7 @@ fn render_bands(
             }
         }
     }
+    renderer.end_sub_bands();
     out
 }
 

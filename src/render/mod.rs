@@ -25,6 +25,7 @@ mod polar_sun;
 pub mod relief;
 pub mod shadow_edges;
 pub mod sight;
+pub mod sight_memo;
 
 use std::time::Instant;
 
@@ -100,6 +101,7 @@ pub struct Renderer {
     stack: Vec<Cell>,
     chunks: Vec<std::ops::Range<usize>>,
     interior: InteriorMask,
+    sight: sight_memo::SightMemo,
 }
 
 impl Renderer {
@@ -117,6 +119,7 @@ impl Renderer {
             leaves: Vec::new(),
             stack: Vec::new(),
             chunks: Vec::new(),
+            sight: Default::default(),
             interior: InteriorMask::default(),
         }
     }
@@ -155,6 +158,24 @@ impl Renderer {
         self.render_flux_band(body, state, settings, &band)
     }
 
+    /// Until [`Self::end_sub_bands`], the renders are sub-bands of one
+    /// frame (one body and state): the lines of sight marched through the
+    /// relief in the first are read back by the others
+    /// ([`sight_memo`]).
+    pub fn begin_sub_bands(&mut self) {
+        self.sight.begin();
+    }
+
+    /// Ends [`Self::begin_sub_bands`] and frees what it kept.
+    pub fn end_sub_bands(&mut self) {
+        self.sight.end();
+    }
+
+    /// What [`Self::begin_sub_bands`] keeps.
+    pub fn sub_band_memo(&self) -> &sight_memo::SightMemo {
+        &self.sight
+    }
+
     /// [`render_flux`](Self::render_flux) for one sub-band of a spectral
     /// scene: the model, albedo and map scale of that band.
     pub fn render_flux_band(
@@ -181,6 +202,7 @@ impl Renderer {
         }
         let to_camera = state.camera_attitude.inverse();
         let to_body = state.body_attitude.inverse();
+        let sight_memo = self.sight.prepare(body);
         let frame = Frame {
             lune,
             camera: &self.camera,
@@ -202,6 +224,7 @@ impl Renderer {
             occulter: occulter_near(state, &lune, body.radius),
             shadows: None,
             height: body.relief.height.as_ref(),
+            sight_memo,
         };
         let mut frame = frame;
         if let Some(s) = &body.relief.shadows {
@@ -375,6 +398,7 @@ fn integrate_leaves(
                 interior: mask,
                 skipped: 0.0,
                 integrated: 0,
+                tape: Default::default(),
             };
             let flux = leaves[range.clone()]
                 .iter()

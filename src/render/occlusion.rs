@@ -8,8 +8,8 @@
 //! `far_limb` (a terrain cap's footprint reached 0.42 px under the crest
 //! cap's) and 0.947 with it (its wider layout moved the caps: a 0.035 px
 //! gap instead): the same centre sampling, not the far limb's march.
-//! A cap whose four corners disagree on being seen is therefore cut into
-//! quarters, recursively, until each part's footprint spans at most
+//! A cap with a corner seen and a corner hidden by relief is therefore
+//! cut into quarters, recursively, until each part's footprint spans at most
 //! [`EDGE_PART_PX`]; each part is seen or hidden at its own centre and
 //! grids its own footprint. A part's projected area is that of the
 //! bilinear surface its corners sit on: the smooth slope maps faced the
@@ -17,13 +17,18 @@
 //! put 3 % of a pixel's light into slivers (that pixel without / with
 //! `far_limb`: 1/16 px parts 0.991 / 1.041 with the slope maps' area,
 //! 0.968 / 1.005 with the surface's; 1/64 px parts 1.018 / 1.026 and
-//! 0.995 / 0.990). Parts stop at 1/16 px: near a relief Moon's limb most
-//! caps are cut, and 1/64 px parts made `configs/moon_relief.toml` take
-//! 107 s of CPU instead of about 3 (the camera test's marches).
+//! 0.995 / 0.990). Parts stop at 1/16 px: 1/64 px parts made
+//! `configs/moon_relief.toml` take 107 s of CPU instead of about 3 (the
+//! camera test's marches). A cap whose corners are only seen or facing
+//! away is a plain fold (the limb, a crest): not cut, since its corners'
+//! projections already place the silhouette (cutting it there moved
+//! `tests/relief_limb.rs`'s limb from 0.005 to 0.014 px off and cost
+//! half of that render's time).
 
 use glam::DVec3;
 
 use super::caps::{bounds, grid_quad_shaped, Frame, Sink};
+use super::sight_memo::SightTape;
 
 /// Footprint size [px] below which a part across an occlusion edge is not
 /// cut further: the edge lands within half of it.
@@ -33,13 +38,35 @@ pub const EDGE_PART_PX: f64 = 1.0 / 16.0;
 /// practice about 2 per level along the edge).
 const MAX_DEPTH: u32 = 4;
 
-/// A cap corner: its image position, radiance shape and whether the
-/// camera sees it.
+/// How the camera sees a point of the displaced surface.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sight {
+    /// It faces the camera and no relief hides it.
+    Seen,
+    /// Its surface faces away from the camera: past a fold (the limb, a
+    /// crest), which the cap geometry places itself.
+    BackFacing,
+    /// It faces the camera, but nearer relief hides it.
+    Hidden,
+}
+
+/// Whether an occlusion edge crosses a cap whose corners the camera sees
+/// as `sight`: some corner is seen and some is hidden by relief. Seen and
+/// back-facing corners alone are a plain fold: the corners' projections
+/// fold there and the silhouette falls where the surface puts it, to
+/// 1e-4 px (`tests/relief_limb.rs`); cutting it would place it to half a
+/// part.
+pub fn crosses_edge(sight: &[Sight; 4]) -> bool {
+    sight.contains(&Sight::Seen) && sight.contains(&Sight::Hidden)
+}
+
+/// A cap corner: its image position, radiance shape and how the camera
+/// sees it.
 #[derive(Clone, Copy, Debug)]
 pub struct EdgePoint {
     pub pos: (f64, f64),
     pub shape: f64,
-    pub seen: bool,
+    pub sight: Sight,
 }
 
 impl Frame<'_> {
@@ -54,8 +81,25 @@ impl Frame<'_> {
     /// direction `n_local` (Lester coordinates): it faces the camera and
     /// no relief hides it (the centre test of the integrand).
     pub fn seen(&self, n_local: DVec3) -> bool {
+        self.sight(n_local) == Sight::Seen
+    }
+
+    /// How the camera sees the displaced surface over the unit direction
+    /// `n_local` (Lester coordinates).
+    pub fn sight(&self, n_local: DVec3) -> Sight {
+        self.sight_now(n_local)
+    }
+
+    /// [`Self::sight`], read back from the worker's `tape` where an
+    /// earlier sub-band of the frame recorded it ([`super::sight_memo`]).
+    pub fn sight_taped(&self, n_local: DVec3, tape: &mut SightTape) -> Sight {
+        tape.sight(n_local, || self.sight_now(n_local))
+    }
+
+    /// [`Self::sight`], computed.
+    fn sight_now(&self, n_local: DVec3) -> Sight {
         let Some(height) = self.height else {
-            return true;
+            return Sight::Seen;
         };
         let [xb, yb, zb] = self.axes_body;
         let n_body = xb * n_local.x + yb * n_local.y + zb * n_local.z;
@@ -63,12 +107,17 @@ impl Frame<'_> {
         let r =
             crate::scene::surface::displaced_radius_tiled(&height.0, tiles, self.radius, n_body);
         let cam = self.lune.camera_local() - n_local * r;
-        self.surface_normal_local(n_body, r).dot(cam) > 0.0
-            && self.camera_visible(n_body, cam, r) > 0.0
+        if self.surface_normal_local(n_body, r).dot(cam) <= 0.0 {
+            Sight::BackFacing
+        } else if self.camera_visible(n_body, cam, r) > 0.0 {
+            Sight::Seen
+        } else {
+            Sight::Hidden
+        }
     }
 
     /// The cap corner at colatitude `theta` and lune coordinate `s`.
-    fn edge_point(&self, theta: f64, s: f64) -> EdgePoint {
+    fn edge_point(&self, theta: f64, s: f64, tape: &mut SightTape) -> EdgePoint {
         let (st, ct) = theta.sin_cos();
         let (lo, hi) = self.lune.phi_range(st);
         let (sp, cp) = (lo + s * (hi - lo).max(0.0)).sin_cos();
@@ -93,13 +142,13 @@ impl Frame<'_> {
             shape: self
                 .weight
                 .radiance_shape(st * cp, st * (cp * cos_a + sp * sin_a)),
-            seen: self.seen(n_local),
+            sight: self.sight_taped(n_local, tape),
         }
     }
 
     /// Integrates and grids the cap θ ∈ `theta`, s ∈ `s` whose corners
-    /// (θ0 s0, θ0 s1, θ1 s1, θ1 s0) are `c`: cut into quarters while its
-    /// corners disagree on being seen and its footprint exceeds
+    /// (θ0 s0, θ0 s1, θ1 s1, θ1 s0) are `c`: cut into quarters while an
+    /// occlusion edge crosses it ([`crosses_edge`]) and its footprint exceeds
     /// [`EDGE_PART_PX`]. Returns the PF of the parts gridded.
     pub fn grid_edge_cap(
         &self,
@@ -110,7 +159,7 @@ impl Frame<'_> {
         depth: u32,
     ) -> f64 {
         let quad = c.map(|p| p.pos);
-        let mixed = c.iter().any(|p| p.seen != c[0].seen)
+        let mixed = crosses_edge(&c.map(|p| p.sight))
             && quad.iter().all(|p| p.0.is_finite() && p.1.is_finite());
         let (x0, y0, x1, y1) = bounds(&quad);
         let extent = (x1 - x0).max(y1 - y0);
@@ -118,11 +167,12 @@ impl Frame<'_> {
             return self.grid_part(sink, theta, s, &c);
         }
         let (tm, sm) = (0.5 * (theta.0 + theta.1), 0.5 * (s.0 + s.1));
-        let top = self.edge_point(theta.0, sm);
-        let right = self.edge_point(tm, s.1);
-        let bottom = self.edge_point(theta.1, sm);
-        let left = self.edge_point(tm, s.0);
-        let mid = self.edge_point(tm, sm);
+        let tape = &mut sink.tape;
+        let top = self.edge_point(theta.0, sm, tape);
+        let right = self.edge_point(tm, s.1, tape);
+        let bottom = self.edge_point(theta.1, sm, tape);
+        let left = self.edge_point(tm, s.0, tape);
+        let mid = self.edge_point(tm, sm, tape);
         let (upper, lower) = ((theta.0, tm), (tm, theta.1));
         let (west, east) = ((s.0, sm), (sm, s.1));
         self.grid_edge_cap(sink, upper, west, [c[0], top, mid, left], depth + 1)
@@ -149,6 +199,12 @@ impl Frame<'_> {
         }
         let (sp, cp) = (lo + 0.5 * (s.0 + s.1) * (hi - lo)).sin_cos();
         let n_local = DVec3::new(st * cp, st * sp, ct);
+        // The integrand is zero where the surface faces away or relief
+        // hides it (the same two tests): a part that is
+        // not seen skips it, and the sight is read back in later sub-bands.
+        if self.sight_taped(n_local, &mut sink.tape) != Sight::Seen {
+            return 0.0;
+        }
         let [xb, yb, zb] = self.axes_body;
         let n_body = xb * n_local.x + yb * n_local.y + zb * n_local.z;
         let albedo = self.point_albedo(n_body);

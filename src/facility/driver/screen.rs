@@ -339,6 +339,9 @@ impl ScreenModel {
         self.accumulated.clear();
         self.effective_all_caps = 0.0;
         self.shadows = None;
+        if self.bands.len() > 1 {
+            self.renderer.begin_sub_bands();
+        }
         for (i, b) in self.bands.iter().enumerate() {
             let band = BandModel {
                 model: Some(&b.model),
@@ -364,6 +367,7 @@ impl ScreenModel {
                 }
             }
         }
+        self.renderer.end_sub_bands();
         roi.expect("at least one band")
     }
 
