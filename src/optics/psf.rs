@@ -204,7 +204,15 @@ impl Kernel {
             .collect();
         let blurred = if 2 * self.half < DIRECT_MAX_SIDE {
             match self.folded() {
-                Some(folded) => convolve_folded(&folded, self.half, &crop, cw, ch),
+                Some(folded) => {
+                    // Written straight over the image's box (the crop
+                    // keeps the source).
+                    let rows = &mut image[y0 * width..y1 * width];
+                    let wide = avx_available();
+                    let to = Target { rows, width, x0 };
+                    convolve_folded_into(&folded, self.half, &crop, cw, ch, wide, to);
+                    return Some([x0, x1, y0, y1]);
+                }
                 None => self.convolve_direct(&crop, cw, ch),
             }
         } else {
@@ -319,6 +327,7 @@ const LANES: usize = 8;
 /// the quadrant's row dy, pairing x ± dx; blocks of [`LANES`] output
 /// pixels accumulate every (dy, dx) in registers. A third of the
 /// multiplications of the plain sum, and no accumulator traffic.
+#[cfg(test)]
 fn convolve_folded(
     quadrant: &[f32],
     half: usize,
@@ -331,6 +340,7 @@ fn convolve_folded(
 
 /// [`convolve_folded`] in blocks of [`WIDE`] pixels ([`folded_block_avx`])
 /// when `wide` (the CPU must have AVX), else of [`LANES`].
+#[cfg(test)]
 fn convolve_folded_blocks(
     quadrant: &[f32],
     half: usize,
@@ -339,47 +349,85 @@ fn convolve_folded_blocks(
     height: usize,
     wide: bool,
 ) -> Vec<f32> {
+    let mut out = vec![0.0f32; image.len()];
+    let to = Target {
+        rows: &mut out,
+        width,
+        x0: 0,
+    };
+    convolve_folded_into(quadrant, half, image, width, height, wide, to);
+    out
+}
+
+/// Where [`convolve_folded_into`] writes: output row y at
+/// `rows[y * width + x0..]`.
+struct Target<'a> {
+    rows: &'a mut [f32],
+    width: usize,
+    x0: usize,
+}
+
+/// [`convolve_folded_blocks`] written into `to`. The row sums y ± dy are
+/// written in one pass (a + b, or the one row inside the image: the same
+/// values as adding them to zeros, the rates being ≥ 0, never −0); the
+/// zeros around them are never written.
+fn convolve_folded_into(
+    quadrant: &[f32],
+    half: usize,
+    image: &[f32],
+    width: usize,
+    height: usize,
+    wide: bool,
+    to: Target,
+) {
     let side = half + 1;
     let padded = width.div_ceil(WIDE) * WIDE;
     // A row sum with `half` zeros before it and enough after it.
     let stride = padded + 2 * half;
-    let mut out = vec![0.0f32; image.len()];
-    out.par_chunks_mut(width).enumerate().for_each_init(
-        || vec![0.0f32; side * stride],
-        |sums, (y, row)| {
-            let mut rows = 0;
-            for dy in 0..side {
-                let sum = &mut sums[dy * stride..][..stride];
-                sum.fill(0.0);
-                let target = &mut sum[half..half + width];
-                let mut any = false;
-                for sy in [y + dy, y.wrapping_sub(dy)] {
-                    if sy < height && (dy > 0 || !any) {
-                        let src = &image[sy * width..][..width];
-                        target.iter_mut().zip(src).for_each(|(t, &s)| *t += s);
-                        any = true;
+    let row_of = |sy: usize| &image[sy * width..][..width];
+    to.rows
+        .par_chunks_mut(to.width)
+        .take(height)
+        .enumerate()
+        .for_each_init(
+            || vec![0.0f32; side * stride],
+            |sums, (y, out)| {
+                let row = &mut out[to.x0..][..width];
+                let mut rows = 0;
+                for dy in 0..side {
+                    let target = &mut sums[dy * stride + half..][..width];
+                    let below = (y + dy < height).then(|| row_of(y + dy));
+                    let above = (dy > 0 && dy <= y).then(|| row_of(y - dy));
+                    match (below, above) {
+                        (Some(a), Some(b)) => {
+                            for ((t, &a), &b) in target.iter_mut().zip(a).zip(b) {
+                                *t = a + b;
+                            }
+                        }
+                        (Some(a), None) | (None, Some(a)) => target.copy_from_slice(a),
+                        // No row at this dy, nor at any larger one.
+                        (None, None) => break,
                     }
+                    rows = dy + 1;
                 }
-                rows = if any { dy + 1 } else { rows };
-            }
-            let mut x0 = 0;
-            while x0 < width {
-                let n = if wide { WIDE } else { LANES };
-                let rows_from = |dy: usize| &sums[dy * stride + x0..][..n + 2 * half];
-                let m = n.min(width - x0);
-                if wide {
-                    // SAFETY: `wide` is true only when the CPU has AVX.
-                    let acc = unsafe { folded_block_avx(rows_from, quadrant, side, rows, half) };
-                    row[x0..x0 + m].copy_from_slice(&acc[..m]);
-                } else {
-                    let acc = folded_block(rows_from, quadrant, side, rows, half);
-                    row[x0..x0 + m].copy_from_slice(&acc[..m]);
+                let mut x0 = 0;
+                while x0 < width {
+                    let n = if wide { WIDE } else { LANES };
+                    let rows_from = |dy: usize| &sums[dy * stride + x0..][..n + 2 * half];
+                    let m = n.min(width - x0);
+                    if wide {
+                        // SAFETY: `wide` is true only when the CPU has AVX.
+                        let acc =
+                            unsafe { folded_block_avx(rows_from, quadrant, side, rows, half) };
+                        row[x0..x0 + m].copy_from_slice(&acc[..m]);
+                    } else {
+                        let acc = folded_block(rows_from, quadrant, side, rows, half);
+                        row[x0..x0 + m].copy_from_slice(&acc[..m]);
+                    }
+                    x0 += n;
                 }
-                x0 += n;
-            }
-        },
-    );
-    out
+            },
+        );
 }
 
 /// One block of [`LANES`] output pixels of [`convolve_folded`]:
