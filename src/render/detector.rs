@@ -295,6 +295,10 @@ struct Spectral {
     /// L Ω per unit electron rate when one band makes both images
     /// (E☉ / rate☉ of the band), else None.
     radiance_per_rate: Option<f32>,
+    /// [x0, x1, y0, y1): both images are 0 outside it (the union of the
+    /// bands' regions of interest, grown by the PSF; it may reach past
+    /// the frame, which clips it).
+    lit: [usize; 4],
 }
 
 impl Spectral {
@@ -313,27 +317,34 @@ impl Spectral {
         height: usize,
         omega: &[f32],
     ) {
-        let rate_box = kernel.convolve_in_place(&mut self.electron_rate, width, height);
+        let lit = self.lit;
+        let rate_box = kernel.convolve_in_place_within(&mut self.electron_rate, width, height, lit);
+        let power_image;
         let (power, scale, area) = match self.radiance_per_rate {
             Some(ratio) => (&self.electron_rate, ratio, rate_box),
             None => {
-                let power: Vec<f32> = self
+                let mut power: Vec<f32> = self
                     .radiance
                     .iter()
                     .zip(omega)
                     .map(|(l, o)| l * o)
                     .collect();
-                let (power, area) = kernel.convolve_in_box(&power, width, height);
-                self.radiance = power;
-                (&self.radiance, 1.0, area)
+                let area = kernel.convolve_in_place_within(&mut power, width, height, lit);
+                power_image = power;
+                (&power_image, 1.0, area)
             }
         };
-        // Only the convolution's box holds light.
-        let mut radiance = vec![0.0f32; width * height];
+        // The radiance is written over in place: its old light (inside
+        // `lit`) cleared, then the convolution's box filled.
+        let [x0, x1, y0, y1] = lit;
+        let x1 = x1.min(width);
+        for y in y0..y1.min(height) {
+            self.radiance[y * width + x0.min(x1)..y * width + x1].fill(0.0);
+        }
         if let Some([x0, x1, y0, y1]) = area {
             for y in y0..y1 {
                 let span = y * width + x0..y * width + x1;
-                for ((l, &p), &o) in radiance[span.clone()]
+                for ((l, &p), &o) in self.radiance[span.clone()]
                     .iter_mut()
                     .zip(&power[span.clone()])
                     .zip(&omega[span])
@@ -342,7 +353,7 @@ impl Spectral {
                 }
             }
         }
-        self.radiance = radiance;
+        self.lit = union_box(rate_box, area);
     }
 
     /// The lens: the ideal grid's images resampled onto the camera's
@@ -364,6 +375,22 @@ impl Spectral {
             .zip(&lens.solid_angle)
             .map(|(&r, &o)| r * o)
             .collect();
+        // Light may now be anywhere in the camera's frame.
+        self.lit = [0, usize::MAX, 0, usize::MAX];
+    }
+}
+
+/// The smallest box [x0, x1, y0, y1) holding both (an empty box for none).
+fn union_box(a: Option<[usize; 4]>, b: Option<[usize; 4]>) -> [usize; 4] {
+    match (a, b) {
+        (Some(a), Some(b)) => [
+            a[0].min(b[0]),
+            a[1].max(b[1]),
+            a[2].min(b[2]),
+            a[3].max(b[3]),
+        ],
+        (Some(a), None) | (None, Some(a)) => a,
+        (None, None) => [0, 0, 0, 0],
     }
 }
 
@@ -396,6 +423,7 @@ fn render_bands(
             }
             _ => None,
         },
+        lit: [0, 0, 0, 0],
     };
     if bands.len() > 1 {
         renderer.begin_sub_bands();
@@ -409,6 +437,8 @@ fn render_bands(
         out.all_caps_electrons += out.stats.total_flux * band.electron_rate_1au;
         let flux = renderer.flux();
         let roi = out.stats.roi;
+        let roi_box = (!roi.is_empty()).then_some([roi.x0, roi.x1, roi.y0, roi.y1]);
+        out.lit = union_box((out.lit != [0; 4]).then_some(out.lit), roi_box);
         for row in roi.y0..roi.y1 {
             let span = row * grid.width + roi.x0..row * grid.width + roi.x1;
             let pixels = flux[span.clone()]
@@ -443,6 +473,9 @@ struct Detected {
     total_electrons: f64,
     saturated: u64,
     peak_dn: u32,
+    /// [x0, x1, y0, y1): the pixels detected (lit by the body or a star);
+    /// every other pixel's electron rate is 0.
+    lit: [usize; 4],
 }
 
 /// Electrons (with the pupil's projected area: cos⁴ with the exact Ω),
@@ -468,6 +501,7 @@ fn detect(
         dn: vec![0u16; n],
         ..Default::default()
     };
+    let (mut x0, mut x1, mut y0, mut y1) = (usize::MAX, 0, usize::MAX, 0);
     for j in 0..pin.height {
         for i in 0..pin.width {
             let k = j * pin.width + i;
@@ -475,6 +509,8 @@ fn detect(
             if spectral.radiance[k] == 0.0 && star_rate == 0.0 {
                 continue;
             }
+            (x0, x1) = (x0.min(i), x1.max(i + 1));
+            (y0, y1) = (y0.min(j), j + 1);
             let dir = match pixels.direction {
                 Some(d) => d[k],
                 None => pin.pixel_direction(i, j),
@@ -504,6 +540,7 @@ fn detect(
             d.peak_dn = d.peak_dn.max(level as u32);
         }
     }
+    d.lit = if x0 < x1 { [x0, x1, y0, y1] } else { [0; 4] };
     d
 }
 
@@ -516,8 +553,15 @@ fn apply_sensor(scene: &Scene, params: SensorParams, d: &mut Detected) -> Sensor
     let sensor = Sensor::shared(params, cam.readout(), pin.width, pin.height);
     // The ideal detector's frame is written over: no new frame.
     d.dn.resize(d.electron_rate.len(), 0);
-    d.saturated = sensor.expose_into(&d.electron_rate, cam.exposure, cam.sensor_frame, &mut d.dn);
-    d.peak_dn = d.dn.iter().copied().max().unwrap_or(0) as u32;
+    let frame = sensor.expose_lit(
+        &d.electron_rate,
+        d.lit,
+        cam.exposure,
+        cam.sensor_frame,
+        &mut d.dn,
+    );
+    d.saturated = frame.saturated;
+    d.peak_dn = frame.peak_dn as u32;
     SensorSummary {
         params,
         frame: cam.sensor_frame,

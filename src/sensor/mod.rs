@@ -196,6 +196,25 @@ pub struct Sensor {
     full_scale: f64,
 }
 
+/// What [`Sensor::expose_lit`] counts while it writes a frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FrameCounts {
+    /// Pixels at the full well or the largest DN.
+    pub saturated: u64,
+    /// The frame's largest DN.
+    pub peak_dn: u16,
+}
+
+impl FrameCounts {
+    /// The counts of a frame from its rows'.
+    fn sum(rows: impl Iterator<Item = FrameCounts>) -> FrameCounts {
+        rows.fold(FrameCounts::default(), |a, b| FrameCounts {
+            saturated: a.saturated + b.saturated,
+            peak_dn: a.peak_dn.max(b.peak_dn),
+        })
+    }
+}
+
 /// One frame read out.
 #[derive(Clone, Debug)]
 pub struct SensorFrame {
@@ -279,12 +298,27 @@ impl Sensor {
     /// [`Sensor::expose`] written over `dn` (every pixel: a render reuses
     /// its frame), returning the saturated pixels' count.
     pub fn expose_into(&self, rate: &[f32], exposure: f64, frame: u64, dn: &mut [u16]) -> u64 {
+        let whole = [0, self.width, 0, self.height];
+        self.expose_lit(rate, whole, exposure, frame, dn).saturated
+    }
+
+    /// [`Sensor::expose_into`] when every non-zero `rate` lies in the box
+    /// `lit` = [x0, x1, y0, y1) (a render knows where its light is): the
+    /// rows' lit spans are looked for inside it only, so the rest of the
+    /// rate image is not read. The frame is the same as `expose_into`'s.
+    pub fn expose_lit(
+        &self,
+        rate: &[f32],
+        lit: [usize; 4],
+        exposure: f64,
+        frame: u64,
+        dn: &mut [u16],
+    ) -> FrameCounts {
         assert_eq!(rate.len(), self.width * self.height, "rate image size");
         assert_eq!(dn.len(), rate.len(), "frame size");
         let w = self.width;
         let stream = Stream::new(self.params.seed, FRAME_STREAM + frame);
-        // Each row's span from its first to its last lit pixel.
-        let spans: Vec<Option<(usize, usize)>> = rate.par_chunks(w).map(lit_span).collect();
+        let spans = lit_spans(rate, w, lit);
         let smear = self.smear_in(rate, &spans);
         let dark_mean = self.params.dark_current * exposure;
         let columns = if self.params.shot_noise {
@@ -307,13 +341,16 @@ impl Sensor {
         let r = &self.readout;
         // The saturation level is a whole DN in [0, max_dn] (offset ≥ 0).
         let sat_dn = quantise(self.params.offset + r.gain * self.full_scale, r.max_dn()) as u32;
-        let saturated_in = |row: &[u16]| count_at_least(row, sat_dn);
+        let counts_in = |row: &[u16]| FrameCounts {
+            saturated: count_at_least(row, sat_dn),
+            peak_dn: row.iter().copied().max().unwrap_or(0),
+        };
         // One pass draws and digitises every pixel, counts the saturated
         // ones while the row is in cache and notes the columns holding
         // charge over the full well; only those are bloomed. The runs of
         // a row outside its lit span and the smeared columns are dark:
         // drawn from the table when there is one.
-        let rows: Vec<(Vec<usize>, u64)> = dn
+        let rows: Vec<(Vec<usize>, FrameCounts)> = dn
             .par_chunks_mut(w)
             .enumerate()
             .map(|(j, row)| {
@@ -325,18 +362,19 @@ impl Sensor {
                     }
                     _ => self.draw_run(rate, &draw, j, a, &mut row[a..b], &mut over),
                 });
-                (over, saturated_in(row))
+                (over, counts_in(row))
             })
             .collect();
-        let mut saturated = rows.iter().map(|(_, n)| n).sum();
+        let mut counts = FrameCounts::sum(rows.iter().map(|(_, c)| *c));
         let mut over: Vec<usize> = rows.into_iter().flat_map(|(o, _)| o).collect();
         over.sort_unstable();
         over.dedup();
         if !over.is_empty() {
             self.bloom_columns(&over, rate, &draw, dn);
-            saturated = dn.par_chunks(w).map(saturated_in).sum();
+            let rows: Vec<FrameCounts> = dn.par_chunks(w).map(counts_in).collect();
+            counts = FrameCounts::sum(rows.into_iter());
         }
-        saturated
+        counts
     }
 
     /// The table of this exposure's dark pixels, when one applies: read
@@ -628,6 +666,25 @@ fn runs(values: &[f64]) -> Vec<(usize, usize)> {
 /// counts as non-zero).
 fn lit_span(row: &[f32]) -> Option<(usize, usize)> {
     crate::optics::psf::nonzero_span(row)
+}
+
+/// Each row's [`lit_span`] when every non-zero value of `rate` (rows of
+/// `width`) lies in the box `lit` = [x0, x1, y0, y1) (clipped to the
+/// frame): only the box is read.
+fn lit_spans(rate: &[f32], width: usize, lit: [usize; 4]) -> Vec<Option<(usize, usize)>> {
+    let height = rate.len() / width.max(1);
+    let [x0, x1, y0, y1] = lit;
+    let (x1, y1) = (x1.min(width), y1.min(height));
+    let mut spans = vec![None; height];
+    if x0 < x1 && y0 < y1 {
+        spans[y0..y1]
+            .par_iter_mut()
+            .zip(rate[y0 * width..y1 * width].par_chunks(width))
+            .for_each(|(span, row)| {
+                *span = lit_span(&row[x0..x1]).map(|(a, b)| (x0 + a, x0 + b));
+            });
+    }
+    spans
 }
 
 /// Calls `f(a, b, lit)` on consecutive segments covering 0..`width`:
