@@ -167,19 +167,30 @@ const CENTRE_POSITION_TOLERANCE: f64 = 0.05;
 /// pixel's centre [rad] (past it, as above).
 const CENTRE_ANGLE_TOLERANCE: f64 = 2e-4;
 
+/// Where a pixel spans more than the tolerances above, the misses allowed
+/// grow to this share of its span (corner to corner, per quantity): the
+/// points lie a fifth of a pixel apart, and a miss a tenth of that moves
+/// the pixel's estimate less than its own sampling does (a small Moon's
+/// pixel spans many horizon-map cells).
+const CENTRE_SPAN_SHARE: f64 = 0.02;
+
 thread_local! {
     /// A row's pixel-corner Suns ([`CornerRows`]), kept between frames.
     static CORNERS: RefCell<CornerRows> = const {
-        RefCell::new(CornerRows { top: Vec::new(), bottom: Vec::new(), x0: 0, j: 0 })
+        RefCell::new(CornerRows { top: Vec::new(), bottom: Vec::new(), row: 0, x0: 0, j: 0 })
     };
 }
 
 /// The Sun at the pixel corners above and below one image row (`top[ii]`
 /// at (x0 + ii, j), `bottom[ii]` at (x0 + ii, j + 1)), each computed once
 /// when a pixel first needs it: neighbouring edge pixels share corners.
+/// A slot holds the row number it was computed for, so moving to the
+/// next row forgets every corner without writing the slots.
 struct CornerRows {
-    top: Vec<Option<Option<SunAngles>>>,
-    bottom: Vec<Option<Option<SunAngles>>>,
+    top: Vec<(u64, Option<SunAngles>)>,
+    bottom: Vec<(u64, Option<SunAngles>)>,
+    /// Rows started so far (never 0 after the first `reset`).
+    row: u64,
     x0: usize,
     j: usize,
 }
@@ -187,9 +198,11 @@ struct CornerRows {
 impl CornerRows {
     /// Forget every corner; the row is image row `j` of `roi`.
     fn reset(&mut self, roi: Rect, j: usize) {
+        self.row += 1;
         for corners in [&mut self.top, &mut self.bottom] {
-            corners.clear();
-            corners.resize(roi.width() + 1, None);
+            if corners.len() < roi.width() + 1 {
+                corners.resize(roi.width() + 1, (0, None));
+            }
         }
         (self.x0, self.j) = (roi.x0, j);
     }
@@ -207,11 +220,11 @@ impl CornerRows {
         } else {
             (&mut self.top[ii], self.j)
         };
-        *slot.get_or_insert_with(|| {
-            pixels
-                .sun_at(frame, (self.x0 + ii) as f64, v as f64)
-                .map(|g| SunAngles::of(&g))
-        })
+        if slot.0 != self.row {
+            let sun = pixels.sun_at(frame, (self.x0 + ii) as f64, v as f64);
+            *slot = (self.row, sun.map(|g| SunAngles::of(&g)));
+        }
+        slot.1
     }
 
     /// The interpolated Sun of ROI pixel `ii` of the row, if all four of
@@ -250,6 +263,24 @@ struct PixelSun {
     bubble: [f64; 5],
     /// The map's width [cells] (its columns wrap).
     map_width: f64,
+    /// Largest change across the pixel of the position [cells] and of the
+    /// angles [rad], corner to corner.
+    span: (f64, f64),
+}
+
+/// The largest change of the position [cells] and of the angles [rad]
+/// between any two of `corners` (unwrapped).
+fn spans(corners: &[SunAngles; 4]) -> (f64, f64) {
+    let (mut position, mut angle) = (0.0f64, 0.0f64);
+    for a in corners {
+        for b in corners {
+            position = position.max((a.x - b.x).abs()).max((a.y - b.y).abs());
+            angle = angle
+                .max((a.elevation - b.elevation).abs())
+                .max((a.azimuth - b.azimuth).abs());
+        }
+    }
+    (position, angle)
 }
 
 /// The quantities interpolated, in [`PixelSun::bubble`]'s order.
@@ -271,6 +302,7 @@ impl PixelSun {
             corners,
             bubble: [0.0; 5],
             map_width,
+            span: spans(&corners),
         })
     }
 
@@ -302,10 +334,12 @@ impl PixelSun {
         exact.azimuth = m.azimuth + wrap(exact.azimuth - m.azimuth, TAU);
         let (pe, pm) = (parts(&exact), parts(&m));
         self.bubble = std::array::from_fn(|q| pe[q] - pm[q]);
-        let xy = wrap(m.x - exact.x, self.map_width).abs() <= CENTRE_POSITION_TOLERANCE
-            && (m.y - exact.y).abs() <= CENTRE_POSITION_TOLERANCE;
-        let e = (m.elevation - exact.elevation).abs() <= CENTRE_ANGLE_TOLERANCE;
-        let az = wrap(m.azimuth - exact.azimuth, TAU).abs() <= CENTRE_ANGLE_TOLERANCE;
+        let position = CENTRE_POSITION_TOLERANCE.max(CENTRE_SPAN_SHARE * self.span.0);
+        let angle = CENTRE_ANGLE_TOLERANCE.max(CENTRE_SPAN_SHARE * self.span.1);
+        let xy = wrap(m.x - exact.x, self.map_width).abs() <= position
+            && (m.y - exact.y).abs() <= position;
+        let e = (m.elevation - exact.elevation).abs() <= angle;
+        let az = wrap(m.azimuth - exact.azimuth, TAU).abs() <= angle;
         xy && e && az
     }
 }
