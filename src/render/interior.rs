@@ -305,6 +305,13 @@ impl super::shadow_edges::PixelShadow for PixelRays {
         }
     }
 
+    fn sun_at(&self, frame: &Frame, u: f64, v: f64) -> Option<SunAtPoint> {
+        let shadows = frame.shadows.as_ref()?;
+        let s = self.surface(u, v)?;
+        let l = frame.sun_direction_body(s.n_local, self.radius);
+        Some(shadows.geometry(s.n_body, l))
+    }
+
     fn unshadowed(&self, frame: &Frame, i: usize, j: usize) -> f64 {
         let smooth = Frame {
             shadows: None,

@@ -128,6 +128,25 @@ impl<'a> FrameShadows<'a> {
         self.map
             .relief_factor_at(g.x, g.y, azimuth, elevation, self.sun_radius)
     }
+
+    /// [`Self::factor_at`] for the Sun given in angles: its elevation
+    /// [rad] and sine, and its azimuth [rad, counter-clockwise from local
+    /// east]: no trigonometry before the lookup (the shadow-edge pass
+    /// interpolates these across a pixel, `render::shadow_edges`).
+    #[inline]
+    pub fn factor_of_angles(&self, a: &SunAngles) -> f64 {
+        if a.sin_e >= self.sin_clear {
+            return 1.0;
+        }
+        if a.sin_e <= -self.sin_radius {
+            return 0.0;
+        }
+        if a.sin_e >= self.map.sin_elevation_bound_at(a.x, a.y) + self.sun_radius {
+            return 1.0;
+        }
+        self.map
+            .relief_factor_at(a.x, a.y, a.azimuth, a.elevation, self.sun_radius)
+    }
 }
 
 /// The Sun seen from one surface point, in what [`FrameShadows::factor_at`]
@@ -146,6 +165,37 @@ pub struct SunAtPoint {
     pub east: f64,
     /// Component of the unit Sun vector along local north.
     pub north: f64,
+}
+
+/// The Sun seen from one surface point as angles: what
+/// [`FrameShadows::factor_of_angles`] needs, linear enough across a
+/// pixel to be interpolated from its corners (away from the poles and the
+/// subsolar point, where the azimuth turns fast).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SunAngles {
+    /// Continuous horizon-map column (may lie outside [0, width): it wraps).
+    pub x: f64,
+    /// Continuous horizon-map row.
+    pub y: f64,
+    /// sin(Sun elevation) above the sphere's local horizontal.
+    pub sin_e: f64,
+    /// Sun elevation [rad].
+    pub elevation: f64,
+    /// Sun azimuth [rad, counter-clockwise from local east].
+    pub azimuth: f64,
+}
+
+impl SunAngles {
+    /// The angles of `g`.
+    pub fn of(g: &SunAtPoint) -> SunAngles {
+        SunAngles {
+            x: g.x,
+            y: g.y,
+            sin_e: g.sin_e,
+            elevation: g.sin_e.clamp(-1.0, 1.0).asin(),
+            azimuth: g.north.atan2(g.east),
+        }
+    }
 }
 
 /// Which path a frame took for cast shadows, and why (`summary.json`).

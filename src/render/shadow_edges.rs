@@ -15,13 +15,30 @@
 //! missed, and the 105° p99 of `tests/render_shadow_edges.rs` rose from
 //! 14.8 % to 16.3 %.) A shadow smaller than a pixel that reaches no pixel
 //! centre or probe is still missed.
+//!
+//! The points' Sun geometry (horizon-map position, elevation, azimuth) is
+//! smooth across a pixel while the horizon is not: each pixel corner's
+//! geometry is computed once (a ray–sphere hit and three `atan2`s, shared
+//! with the neighbours along the row) and interpolated bilinearly to the
+//! points (with the exact centre as a fifth node), and each point pays
+//! only its horizon lookup, bilinear at the map's own resolution
+//! ([`FrameShadows::factor_of_angles`]). Where that model does not hold
+//! (a corner off the sphere, the azimuth turning fast near a pole or the
+//! subsolar point, or the corners' bilinear centre off the exact one) the
+//! points take the exact geometry. Cheap points buy more of them: 5 × 5
+//! per pixel, not 4 × 4, which halves the edge pixels' error against a
+//! brute-force mean (`tests/shadow_lattice.rs`).
+
+use std::cell::RefCell;
+use std::f64::consts::TAU;
 
 use rayon::prelude::*;
 
 use super::caps::{Frame, Rect};
+use super::relief::{FrameShadows, SunAngles, SunAtPoint};
 
 /// Points per axis over which an edge pixel's shadow factor is averaged.
-pub const EDGE_POINTS: usize = 4;
+pub const EDGE_POINTS: usize = 5;
 
 /// Neighbouring centre factors closer than this are the same.
 const SAME: f32 = 1e-6;
@@ -80,6 +97,10 @@ impl CentreFactors {
 pub trait PixelShadow: Sync {
     /// The relief's shadow factor at continuous pixel position (u, v).
     fn shadow_at(&self, frame: &Frame, u: f64, v: f64) -> f64;
+    /// The Sun's geometry at continuous pixel position (u, v), None off
+    /// the sphere or without shadows: `shadow_at` is
+    /// [`FrameShadows::factor_at`] of it.
+    fn sun_at(&self, frame: &Frame, u: f64, v: f64) -> Option<SunAtPoint>;
     /// The pixel's flux without cast shadows.
     fn unshadowed(&self, frame: &Frame, i: usize, j: usize) -> f64;
 }
@@ -95,34 +116,232 @@ pub fn refine(
     width: usize,
 ) -> (f64, usize) {
     let roi = centre.roi;
+    let Some(shadows) = frame.shadows.as_ref() else {
+        return (0.0, 0);
+    };
     flux.par_chunks_mut(width)
         .enumerate()
         .skip(roi.y0)
         .take(roi.height())
         .map(|(j, row)| {
             let (mut delta, mut edges) = (0.0, 0usize);
-            for ii in 0..roi.width() {
-                if !centre.is_edge(ii, j - roi.y0) {
-                    continue;
+            CORNERS.with_borrow_mut(|corners| {
+                corners.reset(roi, j);
+                for ii in 0..roi.width() {
+                    if !centre.is_edge(ii, j - roi.y0) {
+                        continue;
+                    }
+                    let i = roi.x0 + ii;
+                    let s = centre.factors[(j - roi.y0) * roi.width() + ii] as f64;
+                    let sun = corners.pixel(frame, shadows, pixels, ii);
+                    let Some(mean) = mean_factor(frame, shadows, pixels, (i, j), s, sun) else {
+                        continue;
+                    };
+                    let unshadowed = if s > 0.5 {
+                        row[i] as f64 / s
+                    } else {
+                        pixels.unshadowed(frame, i, j)
+                    };
+                    let new = unshadowed * mean;
+                    delta += new - row[i] as f64;
+                    row[i] = new as f32;
+                    edges += 1;
                 }
-                let i = roi.x0 + ii;
-                let s = centre.factors[(j - roi.y0) * roi.width() + ii] as f64;
-                let Some(mean) = mean_factor(frame, pixels, i, j, s) else {
-                    continue;
-                };
-                let unshadowed = if s > 0.5 {
-                    row[i] as f64 / s
-                } else {
-                    pixels.unshadowed(frame, i, j)
-                };
-                let new = unshadowed * mean;
-                delta += new - row[i] as f64;
-                row[i] = new as f32;
-                edges += 1;
-            }
+            });
             (delta, edges)
         })
         .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+}
+
+/// Largest turn of the Sun's azimuth [rad] between a pixel's corners for
+/// which its angles are interpolated: near a pole or the subsolar point
+/// the azimuth turns fast (and not linearly) across a pixel.
+const MAX_AZIMUTH_SPREAD: f64 = 0.05;
+
+/// Largest miss of the corners' bilinear position at the pixel's centre
+/// [horizon-map cells], against the exact one: past it the map is not
+/// smooth enough across the pixel (near the limb, a pole) to interpolate.
+const CENTRE_POSITION_TOLERANCE: f64 = 0.05;
+
+/// Largest miss of the corners' bilinear elevation or azimuth at the
+/// pixel's centre [rad] (past it, as above).
+const CENTRE_ANGLE_TOLERANCE: f64 = 2e-4;
+
+/// Where a pixel spans more than the tolerances above, the misses allowed
+/// grow to this share of its span (corner to corner, per quantity): the
+/// points lie a fifth of a pixel apart, and a miss a tenth of that moves
+/// the pixel's estimate less than its own sampling does (a small Moon's
+/// pixel spans many horizon-map cells).
+const CENTRE_SPAN_SHARE: f64 = 0.02;
+
+thread_local! {
+    /// A row's pixel-corner Suns ([`CornerRows`]), kept between frames.
+    static CORNERS: RefCell<CornerRows> = const {
+        RefCell::new(CornerRows { top: Vec::new(), bottom: Vec::new(), row: 0, x0: 0, j: 0 })
+    };
+}
+
+/// The Sun at the pixel corners above and below one image row (`top[ii]`
+/// at (x0 + ii, j), `bottom[ii]` at (x0 + ii, j + 1)), each computed once
+/// when a pixel first needs it: neighbouring edge pixels share corners.
+/// A slot holds the row number it was computed for, so moving to the
+/// next row forgets every corner without writing the slots.
+struct CornerRows {
+    top: Vec<(u64, Option<SunAngles>)>,
+    bottom: Vec<(u64, Option<SunAngles>)>,
+    /// Rows started so far (never 0 after the first `reset`).
+    row: u64,
+    x0: usize,
+    j: usize,
+}
+
+impl CornerRows {
+    /// Forget every corner; the row is image row `j` of `roi`.
+    fn reset(&mut self, roi: Rect, j: usize) {
+        self.row += 1;
+        for corners in [&mut self.top, &mut self.bottom] {
+            if corners.len() < roi.width() + 1 {
+                corners.resize(roi.width() + 1, (0, None));
+            }
+        }
+        (self.x0, self.j) = (roi.x0, j);
+    }
+
+    /// The corner at ROI column `ii` of the top or bottom corner row.
+    fn corner(
+        &mut self,
+        frame: &Frame,
+        pixels: &impl PixelShadow,
+        ii: usize,
+        bottom: bool,
+    ) -> Option<SunAngles> {
+        let (slot, v) = if bottom {
+            (&mut self.bottom[ii], self.j + 1)
+        } else {
+            (&mut self.top[ii], self.j)
+        };
+        if slot.0 != self.row {
+            let sun = pixels.sun_at(frame, (self.x0 + ii) as f64, v as f64);
+            *slot = (self.row, sun.map(|g| SunAngles::of(&g)));
+        }
+        slot.1
+    }
+
+    /// The interpolated Sun of ROI pixel `ii` of the row, if all four of
+    /// its corners see the sphere and the azimuth turns little across it.
+    fn pixel(
+        &mut self,
+        frame: &Frame,
+        shadows: &FrameShadows,
+        pixels: &impl PixelShadow,
+        ii: usize,
+    ) -> Option<PixelSun> {
+        let corners = [
+            self.corner(frame, pixels, ii, false)?,
+            self.corner(frame, pixels, ii + 1, false)?,
+            self.corner(frame, pixels, ii, true)?,
+            self.corner(frame, pixels, ii + 1, true)?,
+        ];
+        PixelSun::new(corners, shadows.map.width() as f64)
+    }
+}
+
+/// `d` wrapped into [−period/2, period/2].
+#[inline]
+fn wrap(d: f64, period: f64) -> f64 {
+    d - period * (d / period).round()
+}
+
+/// The Sun at a pixel's four corners (top left, top right, bottom left,
+/// bottom right), the map column and the azimuth unwrapped to the first's,
+/// interpolated bilinearly to points inside the pixel, plus a bubble
+/// 16 a(1 − a) b(1 − b) that makes it exact at the centre too (it takes
+/// out the second derivative's symmetric part).
+struct PixelSun {
+    corners: [SunAngles; 4],
+    /// Exact minus bilinear at the centre, per quantity.
+    bubble: [f64; 5],
+    /// The map's width [cells] (its columns wrap).
+    map_width: f64,
+    /// Largest change across the pixel of the position [cells] and of the
+    /// angles [rad], corner to corner.
+    span: (f64, f64),
+}
+
+/// The largest change of the position [cells] and of the angles [rad]
+/// between any two of `corners` (unwrapped).
+fn spans(corners: &[SunAngles; 4]) -> (f64, f64) {
+    let (mut position, mut angle) = (0.0f64, 0.0f64);
+    for a in corners {
+        for b in corners {
+            position = position.max((a.x - b.x).abs()).max((a.y - b.y).abs());
+            angle = angle
+                .max((a.elevation - b.elevation).abs())
+                .max((a.azimuth - b.azimuth).abs());
+        }
+    }
+    (position, angle)
+}
+
+/// The quantities interpolated, in [`PixelSun::bubble`]'s order.
+fn parts(g: &SunAngles) -> [f64; 5] {
+    [g.x, g.y, g.sin_e, g.elevation, g.azimuth]
+}
+
+impl PixelSun {
+    fn new(mut corners: [SunAngles; 4], map_width: f64) -> Option<PixelSun> {
+        let first = corners[0];
+        for c in &mut corners[1..] {
+            c.x = first.x + wrap(c.x - first.x, map_width);
+            c.azimuth = first.azimuth + wrap(c.azimuth - first.azimuth, TAU);
+            if (c.azimuth - first.azimuth).abs() > MAX_AZIMUTH_SPREAD {
+                return None;
+            }
+        }
+        Some(PixelSun {
+            corners,
+            bubble: [0.0; 5],
+            map_width,
+            span: spans(&corners),
+        })
+    }
+
+    /// The Sun at fractional position (a, b) ∈ [0, 1]² of the pixel.
+    #[inline]
+    fn at(&self, a: f64, b: f64) -> SunAngles {
+        let [c00, c10, c01, c11] = self.corners.each_ref().map(parts);
+        let w = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
+        let bubble = 16.0 * w[0] * w[3];
+        let v: [f64; 5] = std::array::from_fn(|q| {
+            w[0] * c00[q] + w[1] * c10[q] + w[2] * c01[q] + w[3] * c11[q] + bubble * self.bubble[q]
+        });
+        SunAngles {
+            x: v[0],
+            y: v[1],
+            sin_e: v[2],
+            elevation: v[3],
+            azimuth: v[4],
+        }
+    }
+
+    /// Takes `exact`, the Sun at the pixel's centre, into the
+    /// interpolation if the bilinear one meets it within the tolerances
+    /// above; false (the pixel's points take the exact geometry) if not.
+    fn fit_centre(&mut self, exact: &SunAngles) -> bool {
+        let m = self.at(0.5, 0.5);
+        let mut exact = *exact;
+        exact.x = m.x + wrap(exact.x - m.x, self.map_width);
+        exact.azimuth = m.azimuth + wrap(exact.azimuth - m.azimuth, TAU);
+        let (pe, pm) = (parts(&exact), parts(&m));
+        self.bubble = std::array::from_fn(|q| pe[q] - pm[q]);
+        let position = CENTRE_POSITION_TOLERANCE.max(CENTRE_SPAN_SHARE * self.span.0);
+        let angle = CENTRE_ANGLE_TOLERANCE.max(CENTRE_SPAN_SHARE * self.span.1);
+        let xy = wrap(m.x - exact.x, self.map_width).abs() <= position
+            && (m.y - exact.y).abs() <= position;
+        let e = (m.elevation - exact.elevation).abs() <= angle;
+        let az = wrap(m.azimuth - exact.azimuth, TAU).abs() <= angle;
+        xy && e && az
+    }
 }
 
 /// Indices into the [`EDGE_POINTS`]² points (row-major) of the four
@@ -137,23 +356,34 @@ const PROBES: [usize; 4] = [
 /// Mean shadow factor over [`EDGE_POINTS`]² points of pixel (i, j), or
 /// None where the centre's factor `s` (0 or 1) holds at the four
 /// [`PROBES`] too: the edge passed beside the pixel, not through it.
+/// With `sun` the points' geometry is interpolated from the corners and
+/// the exact centre (where the corners' bilinear model meets the centre
+/// within the tolerances; the probes too), else exact.
 fn mean_factor(
     frame: &Frame,
+    shadows: &FrameShadows,
     pixels: &impl PixelShadow,
-    i: usize,
-    j: usize,
+    (i, j): (usize, usize),
     s: f64,
+    mut sun: Option<PixelSun>,
 ) -> Option<f64> {
     const N: usize = EDGE_POINTS;
-    let point = |k: usize| {
-        let offset = |m: usize| (m as f64 + 0.5) / N as f64;
-        pixels.shadow_at(frame, i as f64 + offset(k % N), j as f64 + offset(k / N))
+    if let Some(p) = &mut sun {
+        let exact = pixels.sun_at(frame, i as f64 + 0.5, j as f64 + 0.5);
+        if !exact.is_some_and(|g| p.fit_centre(&SunAngles::of(&g))) {
+            sun = None;
+        }
+    }
+    let offset = |m: usize| (m as f64 + 0.5) / N as f64;
+    let point = |k: usize, sun: &Option<PixelSun>| match sun {
+        Some(p) => shadows.factor_of_angles(&p.at(offset(k % N), offset(k / N))),
+        None => pixels.shadow_at(frame, i as f64 + offset(k % N), j as f64 + offset(k / N)),
     };
     let mut factors = [f64::NAN; N * N];
     if s == 0.0 || s == 1.0 {
         // Stops at the first probe that disagrees; the rest are points.
         let agree = PROBES.iter().all(|&k| {
-            factors[k] = point(k);
+            factors[k] = point(k, &sun);
             factors[k] == s
         });
         if agree {
@@ -163,7 +393,7 @@ fn mean_factor(
     let sum: f64 = factors
         .iter()
         .enumerate()
-        .map(|(k, &f)| if f.is_nan() { point(k) } else { f })
+        .map(|(k, &f)| if f.is_nan() { point(k, &sun) } else { f })
         .sum();
     Some(sum / (N * N) as f64)
 }
