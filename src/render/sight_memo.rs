@@ -105,12 +105,20 @@ impl SightMemo {
         self.on = true;
     }
 
-    /// Stops keeping answers and frees them.
+    /// Stops keeping answers and drops them. The maps keep their
+    /// capacity: the next frame's band loop fills them again without
+    /// regrowing (a facility run's frames ask for similar counts).
     pub fn end(&mut self) {
         self.on = false;
         self.relief = None;
+        self.forget();
+    }
+
+    fn forget(&mut self) {
         for shard in &mut self.shards {
-            *shard.get_mut().unwrap_or_else(|e| e.into_inner()) = Shard::default();
+            let shard = shard.get_mut().unwrap_or_else(|e| e.into_inner());
+            shard.marches.clear();
+            shard.tapes.clear();
         }
     }
 
@@ -134,9 +142,7 @@ impl SightMemo {
             relief.height_bound.to_bits(),
         );
         if self.relief != Some(id) {
-            for shard in &mut self.shards {
-                *shard.get_mut().unwrap_or_else(|e| e.into_inner()) = Shard::default();
-            }
+            self.forget();
             self.relief = Some(id);
         }
         Some(self)
