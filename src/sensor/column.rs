@@ -182,6 +182,13 @@ mod tests {
                 below < 0.5 / scale && above < 0.5 / scale,
                 "{mean}: {below} {above}"
             );
+            // The guide: the least value whose bits reach each cell's
+            // first b, by search.
+            for (g, &i) in t.guide.iter().enumerate() {
+                let start = (g as u64) << t.shift;
+                let least = t.last_bits.iter().position(|&l| l as u64 >= start);
+                assert_eq!(Some(i as usize), least, "{mean}: cell {g}");
+            }
             // Draws at the edges of each value's bits.
             let mut b = 0u64;
             for (i, &last) in t.last_bits.iter().enumerate() {

@@ -360,7 +360,13 @@ impl Sensor {
                         let dsnu = &self.dsnu[j * w + a..][..b - a];
                         dark.fill(&mut row[a..b], j * w + a, dsnu, draw.rows[j] as f32)
                     }
-                    _ => self.draw_run(rate, &draw, j, a, &mut row[a..b], &mut over),
+                    _ => for_span_parts(a, b, spans[j], |a, b, in_span| {
+                        if in_span {
+                            self.draw_run(rate, &draw, j, a, &mut row[a..b], &mut over)
+                        } else {
+                            self.draw_smear_only(&draw, j, a, &mut row[a..b], &mut over)
+                        }
+                    }),
                 });
                 (over, counts_in(row))
             })
@@ -443,6 +449,40 @@ impl Sensor {
         let (bloom, full_well, row) = (self.params.blooming, self.readout.full_well, draw.rows[j]);
         for (x, (o, (((&r, &g), &d), &s))) in out.iter_mut().zip(maps).enumerate() {
             let (q, noise) = self.charge(draw, r, g, d, s, a + x, (k0 + x) as u64);
+            if bloom && q > full_well {
+                over.push(a + x);
+            }
+            *o = self.digitise(q, noise + row);
+        }
+    }
+
+    /// [`Sensor::draw_run`] for pixels outside their row's lit span (rate
+    /// 0: their light is their column's smear alone), so neither the rate
+    /// nor the PRNU map is read: the same draws, the same frame.
+    fn draw_smear_only(
+        &self,
+        draw: &Draw,
+        j: usize,
+        a: usize,
+        out: &mut [u16],
+        over: &mut Vec<usize>,
+    ) {
+        let (n, k0) = (out.len(), j * self.width + a);
+        let (bloom, full_well, row) = (self.params.blooming, self.readout.full_well, draw.rows[j]);
+        let sigma = self.params.read_noise;
+        let columns = draw.columns[a..a + n].iter().zip(&draw.smear[a..a + n]);
+        let maps = self.dsnu[k0..k0 + n].iter().zip(columns);
+        for (x, (o, (&d, (table, &s)))) in out.iter_mut().zip(maps).enumerate() {
+            let k = (k0 + x) as u64;
+            let (q, noise) = match table {
+                Some(table) => {
+                    let bits = draw.stream.bits(k);
+                    let read = sigma * draw.normal_cells[(bits & 0xffff) as usize] as f64;
+                    (table.draw(column::table_bits(bits)) + d as f64, read)
+                }
+                // PRNU × 0 is 0: the map's value does not matter.
+                None => self.charge(draw, 0.0, 1.0, d, s, a + x, k),
+            };
             if bloom && q > full_well {
                 over.push(a + x);
             }
@@ -603,14 +643,47 @@ impl DarkLookup {
         let mut offsets = dsnu[head..].chunks_exact(4);
         for (g, (o, s)) in (&mut outs).zip(&mut offsets).enumerate() {
             let bits = self.stream.bits((group0 + g) as u64);
-            for lane in 0..4 {
-                o[lane] = self.level(bits, lane, s[lane] + row);
-            }
+            self.levels4(bits, s, row, o);
         }
         let bits = self.stream.bits(tail_group as u64);
         let tail = outs.into_remainder();
         for (lane, (o, &s)) in tail.iter_mut().zip(offsets.remainder()).enumerate() {
             *o = self.level(bits, lane, s + row);
+        }
+    }
+
+    /// [`DarkLookup::level`] of the 4 lanes of `bits` at once, with DSNU
+    /// `dsnu` and row offset `row` (4 each): the same operations in the
+    /// same order on 4 SSE lanes, so the same DN.
+    #[cfg(all(target_arch = "x86_64", target_feature = "sse4.1"))]
+    #[inline(always)]
+    fn levels4(&self, bits: u64, dsnu: &[f32], row: f32, out: &mut [u16]) {
+        use std::arch::x86_64::*;
+        assert!(dsnu.len() == 4 && out.len() == 4);
+        let cell = |lane: u32| self.dn[(bits >> (16 * lane)) as u16 as usize];
+        // SAFETY: SSE4.1 is enabled at compile time (the cfg above);
+        // `dsnu` holds 4 f32 and `out` 4 u16 (8 bytes), asserted above,
+        // and both intrinsics take unaligned addresses.
+        unsafe {
+            let table = _mm_setr_ps(cell(0), cell(1), cell(2), cell(3));
+            let dsnu = _mm_loadu_ps(dsnu.as_ptr());
+            let shift = _mm_add_ps(dsnu, _mm_set1_ps(row));
+            let v = _mm_add_ps(table, _mm_mul_ps(_mm_set1_ps(self.gain), shift));
+            // max(v, 0) is v > 0 ? v : 0 and min(v, m) is v < m ? v : m, as
+            // in `level` (a NaN gives 0); v is then in [0, 65535]: truncation.
+            let v = _mm_min_ps(_mm_max_ps(v, _mm_setzero_ps()), _mm_set1_ps(self.max_dn));
+            let words = _mm_cvttps_epi32(v);
+            let packed = _mm_packus_epi32(words, words);
+            _mm_storel_epi64(out.as_mut_ptr() as *mut __m128i, packed);
+        }
+    }
+
+    /// [`DarkLookup::level`] of the 4 lanes of `bits`, one by one.
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "sse4.1")))]
+    #[inline(always)]
+    fn levels4(&self, bits: u64, dsnu: &[f32], row: f32, out: &mut [u16]) {
+        for lane in 0..4 {
+            out[lane] = self.level(bits, lane, dsnu[lane] + row);
         }
     }
 
@@ -645,7 +718,11 @@ fn count_at_least(row: &[u16], level: u32) -> u64 {
         return 0;
     }
     let level = level as u16;
-    row.iter().map(|&v| (v >= level) as u64).sum()
+    // Counted in u16 lanes (8 per SSE register) over chunks short enough
+    // not to overflow them.
+    row.chunks(1 << 15)
+        .map(|c| c.iter().fold(0u16, |n, &v| n + (v >= level) as u16) as u64)
+        .sum()
 }
 
 /// The runs [a, b) of non-zero values.
@@ -726,6 +803,26 @@ fn for_segments(
     }
     if pos < width {
         f(pos, width, false);
+    }
+}
+
+/// Calls `f(a, b, in_span)` on the parts of [`a`, `b`) inside and outside
+/// the row's lit span `span`, in order.
+fn for_span_parts(
+    a: usize,
+    b: usize,
+    span: Option<(usize, usize)>,
+    mut f: impl FnMut(usize, usize, bool),
+) {
+    let (s, e) = span.map_or((b, b), |(s, e)| (s.clamp(a, b), e.clamp(a, b)));
+    if a < s {
+        f(a, s, false);
+    }
+    if s < e {
+        f(s, e, true);
+    }
+    if e < b {
+        f(e, b, false);
     }
 }
 
@@ -846,6 +943,65 @@ mod tests {
         let mut c = vec![300.0, 300.0];
         bloom_column(&mut c, 100.0);
         assert_eq!(c, vec![100.0, 100.0]);
+    }
+
+    /// The 4-lane dark levels against [`DarkLookup::level`] lane by lane,
+    /// over table values, DSNU and row offsets that clip at 0 and at the
+    /// largest DN, and a NaN DSNU.
+    #[test]
+    fn four_dark_levels_at_once_equal_one_by_one() {
+        let lookup = DarkLookup {
+            dn: (0..1 << 16).map(|i| i as f32 * 0.07 - 300.0).collect(),
+            gain: 0.37,
+            max_dn: 4095.0,
+            stream: Stream::new(5, 9),
+        };
+        let mut rng = rng::Rng::new(1, 2, 3);
+        for trial in 0..20_000 {
+            let bits = rng.next_u64();
+            let mut dsnu: Vec<f32> = (0..4)
+                .map(|_| ((rng.uniform() - 0.5) * 2e3) as f32)
+                .collect();
+            if trial % 97 == 0 {
+                dsnu[trial % 4] = f32::NAN;
+            }
+            let row = ((rng.uniform() - 0.5) * 40.0) as f32;
+            let mut four = [0u16; 4];
+            lookup.levels4(bits, &dsnu, row, &mut four);
+            for lane in 0..4 {
+                let one = lookup.level(bits, lane, dsnu[lane] + row);
+                assert_eq!(four[lane], one, "{trial} {lane}: {dsnu:?} {row}");
+            }
+        }
+    }
+
+    /// The parts of a segment in and out of a span: in order, covering
+    /// it, each pixel in the span part exactly when the span holds it.
+    #[test]
+    fn span_parts_split_a_segment_in_order() {
+        let spans = [
+            None,
+            Some((0, 3)),
+            Some((2, 5)),
+            Some((4, 9)),
+            Some((7, 12)),
+            Some((3, 3)),
+        ];
+        for a in 0..10 {
+            for b in a + 1..11 {
+                for span in spans {
+                    let mut pixels = Vec::new();
+                    for_span_parts(a, b, span, |s, e, inside| {
+                        assert!(s < e, "{a} {b} {span:?}: empty part");
+                        pixels.extend((s..e).map(|x| (x, inside)));
+                    });
+                    let want: Vec<_> = (a..b)
+                        .map(|x| (x, span.is_some_and(|(s, e)| (s..e).contains(&x))))
+                        .collect();
+                    assert_eq!(pixels, want, "{a} {b} {span:?}");
+                }
+            }
+        }
     }
 
     #[test]
