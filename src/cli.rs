@@ -598,6 +598,11 @@ pub fn validate_amie(
     );
     if let Some(s) = &r.relief_signal {
         println!("{} {model}: {}", r.product_id, compare::relief_note(s));
+        println!(
+            "{} {model}: {}",
+            r.product_id,
+            compare::relief_high_pass_note(s)
+        );
     }
     Ok(())
 }

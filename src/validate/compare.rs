@@ -358,6 +358,7 @@ fn figure_notes(r: &ValidationReport) -> Vec<String> {
     ];
     if let Some(s) = &r.relief_signal {
         notes.push(relief_note(s));
+        notes.push(relief_high_pass_note(s));
     }
     notes
 }
@@ -371,6 +372,27 @@ pub fn relief_note(s: &ReliefSignal) -> String {
         s.correlation,
         s.gain,
         100.0 * s.residual_change
+    )
+}
+
+/// One line on the same after the high-pass, per blur.
+pub fn relief_high_pass_note(s: &ReliefSignal) -> String {
+    let parts: Vec<String> = s
+        .high_pass
+        .iter()
+        .map(|h| {
+            format!(
+                "σ {} px {:.3} / {:.3} / {:+.1} %",
+                h.sigma_px,
+                h.correlation,
+                h.gain,
+                100.0 * h.residual_change
+            )
+        })
+        .collect();
+    format!(
+        "high-passed, correlation / gain / residual: {}",
+        parts.join("; ")
     )
 }
 
