@@ -296,6 +296,9 @@ fn the_renders_shadows_on_the_paper_image_fall_where_a_ray_march_puts_them() {
     let (mae, corr) = stats(0);
     let (mae_e, corr_e) = stats(1);
     let bias = shadowed.iter().map(|p| p.render - p.march[0]).sum::<f64>() / shadowed.len() as f64;
+    // Shadowed power, render over march (lit-share deficits summed).
+    let deficit = |f: &dyn Fn(&Pixel) -> f64| band.iter().map(|p| 1.0 - f(p)).sum::<f64>();
+    let power = deficit(&|p| p.render) / deficit(&|p| p.march[0]);
     off_east.sort_by(f64::total_cmp);
     let median_off = off_east[off_east.len() / 2].to_degrees();
     // Pixels the two call mostly shadowed (< ½ lit) or mostly lit.
@@ -305,7 +308,7 @@ fn the_renders_shadows_on_the_paper_image_fall_where_a_ray_march_puts_them() {
     let march_only = count(&|p| p.render >= 0.5 && p.march[0] < 0.5);
     println!(
         "{} band pixels (Sun 0.5-15 deg up, azimuth {median_off:.1} deg from east/west in the median), {} shadowed; \
-         render vs march: mean |diff| {mae:.3}, mean diff {bias:+.3}, correlation {corr:.3}; Sun mirrored east-west: \
+         render vs march: mean |diff| {mae:.3}, mean diff {bias:+.3}, shadowed power render/march {power:.3}, correlation {corr:.3}; Sun mirrored east-west: \
          {mae_e:.3} / {corr_e:.3}; < 1/2 lit in both {both_dark}, render only {render_only}, march only {march_only}",
         band.len(),
         shadowed.len()

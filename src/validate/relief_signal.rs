@@ -13,7 +13,9 @@
 //! darkening there correlates with, whatever its detail. The same numbers
 //! after a high-pass (each of d and e minus its Gaussian blur over the
 //! interior, at [`HIGH_PASS_SIGMAS_PX`]) compare only the detail: where
-//! the shadows and slopes sit, not how the smooth terminator is shaded.
+//! the shadows and slopes sit, not how the smooth terminator is shaded;
+//! and the whole-pixel shift of the relief's detail that matches the
+//! image's best says whether it sits displaced.
 
 use serde::Serialize;
 
@@ -27,6 +29,9 @@ pub const INSET_PX: f64 = 3.0;
 /// removes: from about an AMIE pixel's worth of DEM cells (2 px ≈ 4.7
 /// cells) to the width of the terminator's shading trend.
 pub const HIGH_PASS_SIGMAS_PX: [f64; 3] = [2.0, 4.0, 8.0];
+/// Largest shift [px] along each axis searched for the high-passed
+/// relief's best match ([`HighPassSignal::best_shift_px`]).
+pub const MAX_SHIFT_PX: i64 = 4;
 
 /// The relief's change against the residual without it.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -55,6 +60,46 @@ pub struct HighPassSignal {
     pub correlation: f64,
     pub gain: f64,
     pub residual_change: f64,
+    /// The whole-pixel shift (dx, dy) [px] (x right, y down; within
+    /// ±[`MAX_SHIFT_PX`]) of the high-passed relief change that best
+    /// correlates with the high-passed residual: (0, 0) where the relief's
+    /// detail sits where the image's does; a shift along the Sun's
+    /// direction in the image says the image's shadows are longer or
+    /// shorter than the DEM's, a shift across it a misregistration.
+    pub best_shift_px: [i64; 2],
+    /// The correlation at that shift.
+    pub best_shift_correlation: f64,
+}
+
+/// The shift of `d` within ±[`MAX_SHIFT_PX`] (moving its pattern by
+/// (dx, dy)) that correlates best with `e` over `mask`, and that
+/// correlation.
+fn best_shift(d: &[f64], e: &[f64], mask: &[bool], width: usize) -> ([i64; 2], f64) {
+    let height = d.len() / width;
+    let mut best = ([0, 0], f64::NEG_INFINITY);
+    for dy in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
+        for dx in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
+            let mut pairs = Vec::new();
+            for row in 0..height {
+                for col in 0..width {
+                    let (c, r) = (col as i64 - dx, row as i64 - dy);
+                    if c < 0 || r < 0 || c >= width as i64 || r >= height as i64 {
+                        continue;
+                    }
+                    let (k, src) = (row * width + col, r as usize * width + c as usize);
+                    if mask[k] && mask[src] {
+                        pairs.push((d[src], e[k]));
+                    }
+                }
+            }
+            if let Some((corr, _, _)) = statistics(&pairs) {
+                if corr > best.1 {
+                    best = ([dx, dy], corr);
+                }
+            }
+        }
+    }
+    best
 }
 
 /// (correlation, gain, residual change) of mean-removed pairs (d, e);
@@ -162,11 +207,14 @@ pub fn relief_signal(
                 high_pass(&e, &mask, w, sigma),
             );
             let (correlation, gain, residual_change) = statistics(&pairs(&dh, &eh))?;
+            let (best_shift_px, best_shift_correlation) = best_shift(&dh, &eh, &mask, w);
             Some(HighPassSignal {
                 sigma_px: sigma,
                 correlation,
                 gain,
                 residual_change,
+                best_shift_px,
+                best_shift_correlation,
             })
         })
         .collect();
@@ -270,6 +318,29 @@ mod tests {
         assert!((hp.gain - 0.6).abs() < 0.05, "{hp:?}");
         // 2 cov > var: the relief's detail lowers the high-passed residual.
         assert!(hp.residual_change < 0.0, "{hp:?}");
+    }
+
+    /// The image's detail is the relief's moved by (2, −1) px: the search
+    /// finds that shift with a correlation near 1, while the unshifted
+    /// correlation is far lower.
+    #[test]
+    fn the_best_shift_finds_a_displaced_pattern() {
+        let big = Disk {
+            cx: 40.0,
+            cy: 40.0,
+            radius: 34.0,
+        };
+        let without = raster_of(80, |_, _| 50.0);
+        let with = raster_of(80, |x, y| 50.0 + 3.0 * other(x, y));
+        let real = raster_of(80, |x, y| {
+            let (xs, ys) = (x as i64 - 2, y as i64 + 1);
+            50.0 + 1.5 * other(xs.max(0) as usize, ys.max(0) as usize)
+        });
+        let s = relief_signal(&real, &with, &without, &big).unwrap();
+        let hp = &s.high_pass[0];
+        assert_eq!(hp.best_shift_px, [2, -1], "{hp:?}");
+        assert!(hp.best_shift_correlation > 0.95, "{hp:?}");
+        assert!(hp.correlation < 0.5, "{hp:?}");
     }
 
     #[test]
