@@ -556,7 +556,7 @@ pub fn validate_amie(
     out: &Path,
     data: &Path,
     kernels: Option<&Path>,
-    (relief, psf_sigma, caps_per_pixel): (&str, Option<f64>, Option<f64>),
+    (relief, height_scale, psf_sigma, caps_per_pixel): (&str, f64, Option<f64>, Option<f64>),
     overwrite: bool,
 ) -> Result<()> {
     use optistim::scene::{horizon::ShadowMode, ShadowsSpec};
@@ -575,6 +575,9 @@ pub fn validate_amie(
         "full" => Some(ShadowsSpec::km_dem(dem, ShadowMode::Always, true)),
         other => anyhow::bail!("--relief must be `none`, `shadows` or `full`, not `{other}`"),
     };
+    if let Some(spec) = &mut options.relief {
+        spec.scale *= height_scale;
+    }
     options.psf_sigma_px = psf_sigma;
     options.caps_per_pixel = caps_per_pixel;
     let run = compare::run(img, model, &options)
@@ -598,6 +601,9 @@ pub fn validate_amie(
     );
     if let Some(s) = &r.relief_signal {
         println!("{} {model}: {}", r.product_id, compare::relief_note(s));
+        for line in compare::relief_high_pass_notes(s) {
+            println!("{} {model}: {line}", r.product_id);
+        }
     }
     Ok(())
 }

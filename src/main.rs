@@ -165,6 +165,11 @@ enum ValidateCommand {
         /// shadows, and the same DEM moves the limb and tilts the normals).
         #[arg(long, default_value = "none")]
         relief: String,
+        /// With `--relief`: the DEM's heights times this factor (an
+        /// experiment on how long the image's shadows are; 1: the LOLA
+        /// heights; the scaled heights must stay within ±25 km).
+        #[arg(long, default_value_t = 1.0, value_parser = height_scale_flag)]
+        relief_height_scale: f64,
         /// A Gaussian PSF of this standard deviation [px] on the render
         /// (AMIE publishes none; default: no PSF).
         #[arg(long)]
@@ -187,6 +192,16 @@ fn caps_per_pixel_flag(text: &str) -> Result<f64, String> {
         Ok(d)
     } else {
         Err(format!("must be in (0, {MAX_DENSITY}]"))
+    }
+}
+
+/// `--relief-height-scale`: positive and at most 10.
+fn height_scale_flag(text: &str) -> Result<f64, String> {
+    let k: f64 = text.parse().map_err(|e| format!("{e}"))?;
+    if k > 0.0 && k <= 10.0 {
+        Ok(k)
+    } else {
+        Err("must be in (0, 10]".into())
     }
 }
 
@@ -277,6 +292,7 @@ fn main() -> ExitCode {
             data,
             kernels,
             relief,
+            relief_height_scale,
             psf_sigma,
             caps_per_pixel,
             overwrite,
@@ -286,7 +302,7 @@ fn main() -> ExitCode {
             &out,
             &data,
             kernels.as_deref(),
-            (&relief, psf_sigma, caps_per_pixel),
+            (&relief, relief_height_scale, psf_sigma, caps_per_pixel),
             overwrite,
         ),
     };

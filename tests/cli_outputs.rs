@@ -258,3 +258,30 @@ fn caps_per_pixel_flag_errors_name_the_flag() {
     }
     assert!(!out_dir.exists(), "nothing is written for a bad flag");
 }
+
+/// A bad `--relief-height-scale` is a one-line error naming the flag,
+/// before anything is validated.
+#[test]
+fn relief_height_scale_flag_errors_name_the_flag() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("out");
+    let out_arg = out_dir.to_str().unwrap();
+    for bad in ["nan", "0", "-1", "10.5", "inf", "two"] {
+        let flag = format!("--relief-height-scale={bad}");
+        let args = [
+            "validate",
+            "amie",
+            "data/amie/missing.img",
+            "--relief",
+            "shadows",
+            "--out",
+            out_arg,
+            &flag,
+        ];
+        let out = optistim(&args, &[]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} succeeded");
+        assert!(err.contains("--relief-height-scale"), "{args:?}: {err}");
+    }
+    assert!(!out_dir.exists(), "nothing is written for a bad flag");
+}

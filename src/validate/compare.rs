@@ -37,7 +37,7 @@ use super::background::{remove_background, BackgroundModel, BackgroundParams, Di
 use super::ephem::{self, Utc};
 use super::figure;
 use super::raster::Raster;
-use super::relief_signal::{relief_signal, ReliefSignal};
+use super::relief_signal::{relief_signal, HighPassSignal, ReliefSignal};
 use super::ssim::{ssim, SsimResult, AMIE_DATA_RANGE};
 use crate::error::{Error, Result};
 use crate::radiometry::reflectance::ReflectanceConfig;
@@ -357,6 +357,8 @@ fn figure_notes(r: &ValidationReport) -> Vec<String> {
         ),
     ];
     if let Some(s) = &r.relief_signal {
+        // The high-passed numbers stay in report.json and the command's
+        // output: the figure's foot holds seven lines.
         notes.push(relief_note(s));
     }
     notes
@@ -372,6 +374,29 @@ pub fn relief_note(s: &ReliefSignal) -> String {
         s.gain,
         100.0 * s.residual_change
     )
+}
+
+/// Two lines on the same after the high-pass: the statistics per blur,
+/// and the best shift of the narrowest.
+pub fn relief_high_pass_notes(s: &ReliefSignal) -> [String; 2] {
+    let join = |f: &dyn Fn(&HighPassSignal) -> String| {
+        s.high_pass.iter().map(f).collect::<Vec<_>>().join(" / ")
+    };
+    let first = format!(
+        "high-passed (σ {} px): correlation {}, gain {}, residual {} %",
+        join(&|h| format!("{}", h.sigma_px)),
+        join(&|h| format!("{:.3}", h.correlation)),
+        join(&|h| format!("{:.3}", h.gain)),
+        join(&|h| format!("{:+.1}", 100.0 * h.residual_change)),
+    );
+    let second = match s.high_pass.first() {
+        Some(h) => format!(
+            "high-passed (σ {} px), best at the relief shifted by ({}, {}) px: correlation {:.3}",
+            h.sigma_px, h.best_shift_px[0], h.best_shift_px[1], h.best_shift_correlation
+        ),
+        None => "high-passed: no pixels".to_string(),
+    };
+    [first, second]
 }
 
 /// Runs the pipeline on one AMIE image; see the module doc.
