@@ -23,6 +23,7 @@ pub mod occlusion;
 pub mod output;
 mod polar_sun;
 pub mod relief;
+pub mod relief_effect;
 pub mod shadow_edges;
 pub mod sight;
 pub mod sight_memo;
@@ -228,7 +229,8 @@ impl Renderer {
         };
         let mut frame = frame;
         if let Some(s) = &body.relief.shadows {
-            let mut decision = relief::decide_for_frame(s, &frame);
+            let target = relief::target_of(settings.max_pixel_error);
+            let mut decision = relief::decide_for_frame(s, &frame, target);
             if decision.applied {
                 let sun_radius = (caps::SUN_RADIUS / lune.sun_range).min(1.0).asin();
                 frame.shadows = Some(relief::FrameShadows::new(&s.map, sun_radius));
