@@ -29,7 +29,7 @@ const FLOOR: f64 = 0.01;
 
 fn bundled_moon() -> Scene {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    Scene::from_file(&root.join("configs/moon_relief.toml")).expect("bundled relief scene")
+    Scene::from_file(&root.join("configs/moon.toml")).expect("bundled relief scene")
 }
 
 fn with_mode(scene: &Scene, mode: ShadowMode, target: Option<f64>) -> Scene {

@@ -228,7 +228,13 @@ impl Renderer {
             sight_memo,
         };
         let mut frame = frame;
-        if let Some(s) = &body.relief.shadows {
+        if body.relief.shadows.is_some() && !settings.relief {
+            frame.height = None;
+            stats.shadows = Some(relief::ShadowDecision {
+                reason: "render.relief = false",
+                ..Default::default()
+            });
+        } else if let Some(s) = &body.relief.shadows {
             let target = relief::target_of(settings.max_pixel_error);
             let mut decision = relief::decide_for_frame(s, &frame, target);
             if decision.applied {
