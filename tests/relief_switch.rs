@@ -142,6 +142,17 @@ fn a_far_full_moon() {
     // At the default 1 % the limb's relief (8.6e-2 px) matters; at 10 %
     // nothing does (the slopes barely change a full Moon's shading).
     assert_eq!(check("far full", &scene, &[None, Some(0.1)]), [true, false]);
+    // `[render] relief = false` (the governor's rungs) overrides even
+    // `mode = "always"`: the plain render, bit for bit.
+    let mut off = with_mode(&scene, ShadowMode::Always, None);
+    off.render.relief = false;
+    let off = render(&off);
+    let d = off.summary.relief_shadows.expect("decision reported");
+    assert!(
+        !d.applied && !d.displaced && d.reason == "render.relief = false",
+        "{d:?}"
+    );
+    assert!(off.radiance == render(&with_mode(&scene, ShadowMode::Never, None)).radiance);
 }
 
 /// The bundled Moon's own 30° view, 256 px over its field.
