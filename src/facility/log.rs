@@ -136,7 +136,8 @@ pub struct FrameRecord {
 pub struct ShadowRecord {
     /// Whether the horizon map was applied.
     pub applied: bool,
-    /// Why: `mode = always`, `mode = never`, `auto: resolved`, …
+    /// Why: `mode = always`, `mode = never`, `auto: reaches the error
+    /// target`, `render.relief = false`, …
     pub reason: String,
     /// Longest visible shadow on the image [px].
     pub shadow_px: f64,
