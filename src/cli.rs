@@ -128,6 +128,8 @@ fn plan_settings(
     let Some((target, source)) = planner::target(flag, scene) else {
         return Ok(None);
     };
+    // The relief's `auto` switch judges against the same target.
+    scene.render.max_pixel_error = Some(target);
     let plan = planner::Planner::new(scene)
         .plan(target, source)
         .with_context(|| format!("{}", scene_path.display()))?;

@@ -48,7 +48,7 @@ pub const MIN_INTERIOR_SHARE: f64 = 0.5;
 pub const CAPS_STEP_DENSITY: f64 = 2.0;
 
 /// Caps per pixel and axis of the converged render where the caps draw
-/// the disk. On `configs/moon_relief.toml` (relief at 30°, every pixel
+/// the disk. On `configs/moon.toml` (relief at 30°, every pixel
 /// from caps) 1, 2 and 4 caps per pixel are 20 %, 8.3 % and 2.6 % (p99)
 /// off a render at 6 (BENCHMARKS.md, "Relief: per-pixel error").
 pub const CAPS_REFERENCE_DENSITY: f64 = 4.0;

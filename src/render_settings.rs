@@ -73,6 +73,15 @@ pub struct RenderSettings {
     /// the map filter, samples and tolerance above. In (0, 1].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_pixel_error: Option<f64>,
+    /// `false` renders the body without its relief (`[body] shadows`: no
+    /// cast shadows, no displacement), whatever `shadows.mode` says: the
+    /// governor's cheapest rungs (`facility::governor::ladder_with_relief`).
+    #[serde(skip_serializing_if = "is_true")]
+    pub relief: bool,
+}
+
+fn is_true(b: &bool) -> bool {
+    *b
 }
 
 /// How the pixels inside the lit disk are integrated.
@@ -116,6 +125,7 @@ impl Default for RenderSettings {
             allow_empty: false,
             shadow_edges: true,
             max_pixel_error: None,
+            relief: true,
         }
     }
 }

@@ -119,7 +119,7 @@ fn campaign(
     shift_nm: f64,
 ) -> (radiometric::Report, DisplayLut) {
     let cfg = CalibrateConfig::parse(CALIBRATE, "calibrate.toml", 8).unwrap();
-    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let scene = Scene::from_file(Path::new("configs/moon_plain.toml")).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt =
         Checkpoint::open(&dir.path().join("c.jsonl"), "fp", "radiometric", false).unwrap();
@@ -158,7 +158,7 @@ fn calibrate_lut_measured(sim: &SimFacility) -> (radiometric::Report, DisplayLut
     ) + "\n[calibrate.spectroradiometer]\nkind = \"sim\"\n";
     let cfg = CalibrateConfig::parse(&text, "calibrate.toml", 8).unwrap();
     assert!(cfg.screen_spectrum.is_none() && cfg.spectroradiometer.is_some());
-    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let scene = Scene::from_file(Path::new("configs/moon_plain.toml")).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let mut ckpt =
         Checkpoint::open(&dir.path().join("c.jsonl"), "fp", "radiometric", false).unwrap();
@@ -400,7 +400,7 @@ fn radiometric_calibration_recovers_the_simulated_screen_within_half_a_percent()
     // spectra), and a per-level total that covers the LUT's true error.
     let b = &report.budget;
     assert_eq!(b.meter_scale_k2_percent, Some(1.0));
-    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let scene = Scene::from_file(Path::new("configs/moon_plain.toml")).unwrap();
     let spectral = CameraSpectral::from_scene(&scene);
     let m = Table::from_csv(Path::new(METER_RESPONSE)).unwrap();
     let f0 = spectral.mismatch_factor(&screen_spectrum(0.0), &m).unwrap();
@@ -608,7 +608,7 @@ fn verify_on(
     meter_scale: f64,
 ) -> VerifyReport {
     let cfg = CalibrateConfig::parse(CALIBRATE, "calibrate.toml", 8).unwrap();
-    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let scene = Scene::from_file(Path::new("configs/moon_plain.toml")).unwrap();
     let direction = pixel_direction(10247.4, 64.0, -0.05);
     let setup = VerifySetup {
         cfg: &cfg,
@@ -684,7 +684,7 @@ fn verify_moves_by_the_injected_error() {
     check("meter unit +1 %", &r, 100.0 * (1.0 / 1.01 - 1.0), 0.0);
 
     // Screen spectrum 2 nm off: F' from the shifted file.
-    let scene = Scene::from_file(Path::new("configs/moon.toml")).unwrap();
+    let scene = Scene::from_file(Path::new("configs/moon_plain.toml")).unwrap();
     let spectral = CameraSpectral::from_scene(&scene);
     let m = Table::from_csv(Path::new(METER_RESPONSE)).unwrap();
     let f0 = spectral.mismatch_factor(&screen_spectrum(0.0), &m).unwrap();

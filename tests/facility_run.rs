@@ -740,8 +740,8 @@ fn cli_strict_exits_3_on_a_degraded_run() {
     let text = std::fs::read_to_string(root.join("configs/facility.toml"))
         .unwrap()
         .replace(
-            "\"moon.toml\"",
-            &format!("{:?}", root.join("configs/moon.toml")),
+            "\"moon_plain.toml\"",
+            &format!("{:?}", root.join("configs/moon_plain.toml")),
         )
         .replace(
             "\"moon_approach.csv\"",
@@ -1312,7 +1312,8 @@ fn frames_report_the_renders_error_against_lime() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut config = FacilityConfig::load(root.join("configs/facility.toml")).unwrap();
     config.drive.sub_bands = 16;
-    let mut scene = Scene::from_file(&root.join("configs/moon.toml")).unwrap();
+    // The facility loop's relief-free Moon (configs/facility.toml's scene).
+    let mut scene = Scene::from_file(&root.join("configs/moon_plain.toml")).unwrap();
     let trajectory = Trajectory::load(root.join("configs/moon_approach.csv")).unwrap();
     let tmp = tempfile::tempdir().unwrap();
     let (w, h) = config.screen_size();

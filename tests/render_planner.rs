@@ -5,7 +5,7 @@
 //! (the lune's caps at 6 × 6 per pixel, exact map means: twice the
 //! planner's own reference density per axis); looser targets get strictly
 //! cheaper settings; bad targets are one-line errors naming the key.
-//! On the relief Moon (`configs/moon_relief.toml`, displaced: the caps
+//! On the relief Moon (`configs/moon.toml`, displaced: the caps
 //! draw every pixel) the planner judges the whole disk, not an empty
 //! interior, and its choice meets the target against the same kind of
 //! independent converged render.
@@ -78,7 +78,7 @@ fn disk_p99(image: &[f32], truth: &[f32]) -> f64 {
 /// over the disk.
 #[test]
 fn where_the_caps_draw_the_disk_the_planner_judges_the_disk() {
-    let path = root().join("configs/moon_relief.toml");
+    let path = root().join("configs/moon.toml");
     let text = std::fs::read_to_string(&path)
         .unwrap()
         .replace("resolution = [1024, 1024]", "resolution = [384, 384]");

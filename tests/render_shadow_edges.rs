@@ -19,10 +19,10 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// `configs/moon_relief.toml` at 512 px, shadows without displacement,
+/// `configs/moon.toml` at 512 px, shadows without displacement,
 /// with the Sun at `sun` [m].
 fn scene(sun: [f64; 3]) -> Scene {
-    let path = root().join("configs/moon_relief.toml");
+    let path = root().join("configs/moon.toml");
     let text = std::fs::read_to_string(&path)
         .unwrap()
         .replace("resolution = [1024, 1024]", "resolution = [512, 512]")

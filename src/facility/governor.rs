@@ -66,6 +66,34 @@ pub fn ladder(base: &RenderSettings, block: usize, max_block: usize) -> Vec<Rung
     rungs
 }
 
+/// [`ladder`] for a body with relief (`[body] shadows`): after the
+/// configured block's rungs, the same again without the relief
+/// (`[render] relief = false`: no cast shadows, no displacement; on the
+/// bundled Moon a relief frame costs about 4 times a plain one,
+/// BENCHMARKS.md), and the coarser blocks without it. The frame log names
+/// the rung, and its `shadows` record says `render.relief = false`.
+pub fn ladder_with_relief(base: &RenderSettings, block: usize, max_block: usize) -> Vec<Rung> {
+    let mut rungs = ladder(base, block, max_block);
+    let configured = rungs.iter().take_while(|r| r.block == block.max(1)).count();
+    let plain: Vec<Rung> = rungs
+        .iter_mut()
+        .enumerate()
+        .filter_map(|(i, r)| {
+            let mut p = r.clone();
+            p.settings.relief = false;
+            p.label = format!("{}, no relief", r.label);
+            if i >= configured {
+                *r = p;
+                None
+            } else {
+                Some(p)
+            }
+        })
+        .collect();
+    rungs.splice(configured..configured, plain);
+    rungs
+}
+
 /// One pre-flight measurement of a rung at an apparent size.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Sample {
@@ -425,6 +453,29 @@ mod tests {
         // A configured block of 2 with at most 4: blocks 2, 2, 2, 4.
         let l = ladder(&base, 2, 4);
         assert_eq!(l.iter().map(|r| r.block).collect::<Vec<_>>(), [2, 2, 2, 4]);
+    }
+
+    /// With relief: the configured block's rungs with it, then the same
+    /// without, then the coarser blocks without.
+    #[test]
+    fn a_relief_ladder_drops_the_relief_before_the_blocks() {
+        let base = RenderSettings::default();
+        let plain = ladder(&base, 1, 3);
+        let l = ladder_with_relief(&base, 1, 3);
+        let blocks: Vec<usize> = l.iter().map(|r| r.block).collect();
+        assert_eq!(blocks, [1, 1, 1, 1, 1, 1, 2, 3]);
+        let relief: Vec<bool> = l.iter().map(|r| r.settings.relief).collect();
+        assert_eq!(
+            relief,
+            [true, true, true, false, false, false, false, false]
+        );
+        for k in 0..3 {
+            assert_eq!(l[k].settings, plain[k].settings);
+            let mut off = plain[k].settings.clone();
+            off.relief = false;
+            assert_eq!(l[k + 3].settings, off);
+            assert!(l[k + 3].label.ends_with("no relief"), "{}", l[k + 3].label);
+        }
     }
 
     #[test]

@@ -136,7 +136,8 @@ pub struct FrameRecord {
 pub struct ShadowRecord {
     /// Whether the horizon map was applied.
     pub applied: bool,
-    /// Why: `mode = always`, `mode = never`, `auto: resolved`, …
+    /// Why: `mode = always`, `mode = never`, `auto: reaches the error
+    /// target`, `render.relief = false`, …
     pub reason: String,
     /// Longest visible shadow on the image [px].
     pub shadow_px: f64,
@@ -150,6 +151,20 @@ pub struct ShadowRecord {
     /// preimage (0 with `[render] shadow_edges = false`).
     #[serde(default)]
     pub edge_pixels: usize,
+    /// The per-pixel error target `auto` compared with, and the estimated
+    /// largest changes of a pixel by the shadows, the slopes and the limb
+    /// (`render::relief_effect`).
+    #[serde(default)]
+    pub target: f64,
+    #[serde(default)]
+    pub shadow_effect: f64,
+    #[serde(default)]
+    pub shading_effect: f64,
+    #[serde(default)]
+    pub limb_effect: f64,
+    /// Whether the DEM moved the limb and tilted the normals.
+    #[serde(default)]
+    pub displaced: bool,
 }
 
 impl From<crate::render::relief::ShadowDecision> for ShadowRecord {
@@ -161,6 +176,11 @@ impl From<crate::render::relief::ShadowDecision> for ShadowRecord {
             min_sun_elevation_deg: d.min_sun_elevation_deg,
             hidden_applied: d.hidden_applied,
             edge_pixels: d.edge_pixels,
+            target: d.target,
+            shadow_effect: d.shadow_effect,
+            shading_effect: d.shading_effect,
+            limb_effect: d.limb_effect,
+            displaced: d.displaced,
         }
     }
 }

@@ -23,6 +23,7 @@ pub mod occlusion;
 pub mod output;
 mod polar_sun;
 pub mod relief;
+pub mod relief_effect;
 pub mod shadow_edges;
 pub mod sight;
 pub mod sight_memo;
@@ -227,8 +228,15 @@ impl Renderer {
             sight_memo,
         };
         let mut frame = frame;
-        if let Some(s) = &body.relief.shadows {
-            let mut decision = relief::decide_for_frame(s, &frame);
+        if body.relief.shadows.is_some() && !settings.relief {
+            frame.height = None;
+            stats.shadows = Some(relief::ShadowDecision {
+                reason: "render.relief = false",
+                ..Default::default()
+            });
+        } else if let Some(s) = &body.relief.shadows {
+            let target = relief::target_of(settings.max_pixel_error);
+            let mut decision = relief::decide_for_frame(s, &frame, target);
             if decision.applied {
                 let sun_radius = (caps::SUN_RADIUS / lune.sun_range).min(1.0).asin();
                 frame.shadows = Some(relief::FrameShadows::new(&s.map, sun_radius));

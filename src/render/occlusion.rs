@@ -18,7 +18,7 @@
 //! `far_limb`: 1/16 px parts 0.991 / 1.041 with the slope maps' area,
 //! 0.968 / 1.005 with the surface's; 1/64 px parts 1.018 / 1.026 and
 //! 0.995 / 0.990). Parts stop at 1/16 px: 1/64 px parts made
-//! `configs/moon_relief.toml` take 107 s of CPU instead of about 3 (the
+//! `configs/moon.toml` take 107 s of CPU instead of about 3 (the
 //! camera test's marches). A cap whose corners are only seen or facing
 //! away is a plain fold (the limb, a crest): not cut, since its corners'
 //! projections already place the silhouette (cutting it there moved

@@ -4,12 +4,15 @@
 //!
 //! A sample's factor is one horizon lookup: the Sun's elevation and
 //! azimuth in the sphere's local frame at the sample, and the lit share
-//! of the solar disk above the relief's horizon there.
+//! of the solar disk above the relief's horizon there. `mode = "auto"`
+//! applies the relief where its estimated effect on a pixel
+//! ([`super::relief_effect`]) reaches the frame's per-pixel error target.
 
 use glam::DVec3;
 use serde::Serialize;
 
 use super::caps::Frame;
+use super::relief_effect;
 use crate::scene::horizon::{HorizonMap, ReliefShadows, ShadowMode};
 
 /// What the per-sample loops need of the horizon map in one frame.
@@ -204,9 +207,24 @@ pub struct ShadowDecision {
     /// Whether the frame applied the horizon map.
     pub applied: bool,
     /// Why: `"mode = always"`, `"mode = never"`, `"auto: no shadow in the
-    /// DEM"`, `"auto: resolved"` or `"auto: below a pixel"`.
+    /// DEM"`, `"auto: reaches the error target"` or `"auto: below the
+    /// error target"`.
     pub reason: &'static str,
-    /// Longest visible shadow on the image [px] (`auto`'s measure).
+    /// The per-pixel error target `auto` compares the effects with.
+    pub target: f64,
+    /// Where it came from: `"render.max_pixel_error"` or `"default"`
+    /// ([`DEFAULT_TARGET`]).
+    pub target_source: &'static str,
+    /// Largest relative change of a pixel by the cast shadows:
+    /// min(`shadow_px`, 1) ([`relief_effect`]).
+    pub shadow_effect: f64,
+    /// Largest relative change of a pixel by the DEM's slopes tilting the
+    /// normals (0 without `displace`).
+    pub shading_effect: f64,
+    /// Largest change of a limb pixel by the displaced limb, in whole
+    /// pixels: min(`limb_px`, 1) (0 without `displace`).
+    pub limb_effect: f64,
+    /// Longest visible shadow on the image [px].
     pub shadow_px: f64,
     /// Lowest Sun elevation over the visible lit disk [deg].
     pub min_sun_elevation_deg: f64,
@@ -230,66 +248,67 @@ pub struct ShadowDecision {
     pub edge_pixels: usize,
 }
 
-/// Length on the image [px] that a shadow must reach to be applied in
-/// `auto` mode.
-pub const AUTO_MIN_PIXELS: f64 = 0.1;
+/// Per-pixel error target of `auto` where the scene sets no
+/// `[render] max_pixel_error`: the renderer's own interior p99 at its
+/// default settings on the benchmark Moon (9.9e-3 at 30°, 8.3e-3 at 105°;
+/// README, "Accuracy"), so relief is modelled wherever it matters as much
+/// as the renderer's own error.
+pub const DEFAULT_TARGET: f64 = 1e-2;
 
-/// Samples per axis of the lune scanned by [`decide_for_frame`].
-const SCAN: usize = 32;
+/// The target a frame's `auto` switch compares with: the scene's
+/// `[render] max_pixel_error` if set, else [`DEFAULT_TARGET`].
+pub fn target_of(max_pixel_error: Option<f64>) -> (f64, &'static str) {
+    match max_pixel_error {
+        Some(t) => (t, "render.max_pixel_error"),
+        None => (DEFAULT_TARGET, "default"),
+    }
+}
 
-/// Whether `frame` resolves the relief's shadows. `auto` applies them when
-/// the longest visible shadow on the image reaches [`AUTO_MIN_PIXELS`].
-/// A step of height h with the Sun at elevation e and the camera at phase
-/// α in the same vertical plane shows a shadow of h sin α / sin e across
-/// the line of sight (the rest hides behind the step); h is the DEM's
-/// height range and 1/sin e is capped where the shadow would outrun the
-/// curvature's reach √(2 R h). Scanned over a 32 × 32 grid of the
-/// visible lit lune, each point's length over its pixel footprint d/f.
-pub fn decide_for_frame(shadows: &ReliefShadows, frame: &Frame) -> ShadowDecision {
-    let lune = &frame.lune;
-    let (h, r) = (shadows.relief, frame.radius);
-    let f = frame.camera.fx.max(frame.camera.fy);
-    let cam = lune.camera_local();
-    let min_sin_e = h / (2.0 * r * h).sqrt().max(h);
+/// Whether `frame` applies the relief. `auto` applies it where its
+/// estimated largest change of a pixel ([`relief_effect::estimate`]: a
+/// shadow L px long darkens min(L, 1) of a pixel; the DEM's slopes tilt
+/// the normals; its heights move the limb) reaches `target`
+/// ([`target_of`]), which the decision reports with the estimates. With
+/// `displace` the shadows, the displacement and the hidden-terrain test go
+/// together (each needs the others: a displaced surface without its
+/// hidden-terrain test counts terrain behind the relief), so the largest
+/// of the three effects decides; without it the shadows' alone.
+pub fn decide_for_frame(
+    shadows: &ReliefShadows,
+    frame: &Frame,
+    (target, target_source): (f64, &'static str),
+) -> ShadowDecision {
+    let e = relief_effect::estimate(shadows, frame);
+    let displaces = frame.height.is_some();
+    let limb_px = frame.relief_margin_px();
     let mut d = ShadowDecision {
+        target,
+        target_source,
+        shadow_effect: e.shadow,
+        shading_effect: if displaces { e.shading } else { 0.0 },
+        limb_effect: limb_px.min(1.0),
+        limb_px,
+        shadow_px: e.shadow_px,
+        min_sun_elevation_deg: e.min_sun_elevation_deg,
+        pixel_footprint_m: e.pixel_footprint_m,
         dem_cell_m: shadows.cell,
-        min_sun_elevation_deg: 90.0,
         ..Default::default()
     };
-    let (t_lo, t_hi) = (lune.theta_min, std::f64::consts::PI - lune.theta_min);
-    for a in 0..SCAN {
-        let theta = t_lo + (a as f64 + 0.5) / SCAN as f64 * (t_hi - t_lo);
-        let (st, ct) = theta.sin_cos();
-        let (lo, hi) = lune.phi_range(st);
-        for b in 0..SCAN {
-            let phi = lo + (b as f64 + 0.5) / SCAN as f64 * (hi - lo);
-            let n = DVec3::new(st * phi.cos(), st * phi.sin(), ct);
-            let dist = (cam - n * r).length();
-            let sin_e = n.x.max(0.0);
-            let px = h * lune.alpha.sin() / sin_e.max(min_sin_e) * f / dist;
-            d.min_sun_elevation_deg = d.min_sun_elevation_deg.min(sin_e.asin().to_degrees());
-            if px >= d.shadow_px {
-                d.shadow_px = px;
-                d.pixel_footprint_m = dist / f;
-            }
-        }
-    }
-    let any = shadows.map.max_elevation() > 0.0;
+    let effect = d.shadow_effect.max(d.shading_effect).max(d.limb_effect);
+    let any = displaces || shadows.map.max_elevation() > 0.0;
     (d.applied, d.reason) = match shadows.mode {
         ShadowMode::Never => (false, "mode = never"),
         ShadowMode::Always => (true, "mode = always"),
         ShadowMode::Auto if !any => (false, "auto: no shadow in the DEM"),
-        ShadowMode::Auto if d.shadow_px >= AUTO_MIN_PIXELS => (true, "auto: resolved"),
-        ShadowMode::Auto => (false, "auto: below a pixel"),
+        ShadowMode::Auto if effect >= target => (true, "auto: reaches the error target"),
+        ShadowMode::Auto => (false, "auto: below the error target"),
     };
     d
 }
 
 /// Whether `frame` keeps the body's displacement from the shadows' DEM
-/// (`shadows.displace`): with the shadows, or where the DEM's highest
-/// point moves the limb by [`AUTO_MIN_PIXELS`] or more (a far full Moon's
-/// limb mountains can show where no shadow does); never with `mode =
-/// never`. Records the outcome in `decision`.
+/// (`shadows.displace`): exactly where it applies the shadows
+/// ([`decide_for_frame`]). Records the outcome in `decision`.
 pub fn decide_displacement(
     shadows: &ReliefShadows,
     frame: &mut Frame,
@@ -298,11 +317,10 @@ pub fn decide_displacement(
     if frame.height.is_none() {
         return;
     }
-    decision.limb_px = frame.relief_margin_px();
     decision.displaced = match shadows.mode {
         ShadowMode::Never => false,
         ShadowMode::Always => true,
-        ShadowMode::Auto => decision.applied || decision.limb_px >= AUTO_MIN_PIXELS,
+        ShadowMode::Auto => decision.applied,
     };
     if !decision.displaced {
         frame.height = None;

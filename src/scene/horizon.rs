@@ -110,6 +110,9 @@ pub struct ReliefShadows {
     pub cell: f64,
     /// Height range of the DEM, max − min [m].
     pub relief: f64,
+    /// The DEM's (and its tiles') steepest slope per baseline: how far
+    /// relief can tilt a pixel's mean normal.
+    pub slopes: super::relief_slopes::SlopeScales,
     /// How the map was obtained, and the cache file.
     pub cache: CacheOutcome,
     /// The cache file.

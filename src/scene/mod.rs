@@ -8,6 +8,7 @@
 pub mod camera;
 pub mod horizon;
 pub mod maps;
+pub mod relief_slopes;
 pub mod surface;
 pub mod tile_surface;
 pub mod tiles;
@@ -646,6 +647,7 @@ fn relief_shadows(
     let (h_min, h_max) = dem.range();
     let mut cell = radius * std::f64::consts::PI / dem.height as f64;
     let mut relief = (h_max - h_min) as f64;
+    let mut slopes = relief_slopes::SlopeScales::of_global(&dem, radius);
     let mut map = map;
     let mut tile_set = None;
     if !dem_tiles.is_empty() {
@@ -656,6 +658,14 @@ fn relief_shadows(
             let (lo, hi) = t.map.range();
             relief = relief.max((hi.max(h_max) - lo.min(h_min)) as f64);
             cell = cell.min(radius * t.grid.cell_lat());
+            let g = &t.grid;
+            slopes = slopes.with(relief_slopes::SlopeScales::of_map(
+                &t.map,
+                radius,
+                g.lat_max,
+                g.cell_lat(),
+                g.cell_lon(),
+            ));
         }
         map = map.with_overlay(overlay);
         tile_set = Some(set);
@@ -665,6 +675,7 @@ fn relief_shadows(
         mode: s.mode,
         cell,
         relief,
+        slopes,
         cache,
         cache_file,
         seconds: start.elapsed().as_secs_f64(),

@@ -10,7 +10,7 @@ use std::time::Instant;
 use super::screen::ScreenModel;
 use crate::facility::config::FacilityConfig;
 use crate::facility::geometry::GeometryCalibration;
-use crate::facility::governor::{ladder, Rung, RungProfile, Sample};
+use crate::facility::governor::{ladder, ladder_with_relief, Rung, RungProfile, Sample};
 use crate::scene::{Scene, State};
 
 pub use crate::fidelity::{reference_settings, REFERENCE_DENSITY};
@@ -74,6 +74,12 @@ pub fn rung_models(
     scene: &Scene,
     geometry: Option<&GeometryCalibration>,
 ) -> (Vec<Rung>, Vec<ScreenModel>) {
+    // A body with relief: rungs without it below the configured block's.
+    let ladder = if scene.body.relief.shadows.is_some() {
+        ladder_with_relief
+    } else {
+        ladder
+    };
     let rungs = ladder(
         &scene.render,
         config.screen.render_block,
