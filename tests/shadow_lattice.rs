@@ -275,7 +275,10 @@ fn hapke_body_interpolates_the_sun_without_the_flux_lattice() {
         let mut settings = scene.render.clone();
         settings.pixel_tolerance = f64::INFINITY;
         let checked = check_factors(&scene, &settings, &map, R, what);
-        assert_eq!(checked.lattice, 0, "{what}: the flux lattice is off for Hapke");
+        assert_eq!(
+            checked.lattice, 0,
+            "{what}: the flux lattice is off for Hapke"
+        );
         assert!(
             checked.shadow_exact * 2 < checked.interior,
             "{what}, α {alpha}: {} of {} interior shadows took the exact geometry",

@@ -74,6 +74,7 @@ impl CentreFactors {
 
     /// Whether ROI pixel (ii, jj) is a shadow edge: its factor in the
     /// penumbra, or an interior neighbour's different.
+    #[inline]
     fn is_edge(&self, ii: usize, jj: usize) -> bool {
         let (w, h) = (self.roi.width(), self.roi.height());
         let s = self.factors[jj * w + ii];
@@ -85,6 +86,17 @@ impl CentreFactors {
         }
         let (i0, i1) = (ii.saturating_sub(1), (ii + 1).min(w - 1));
         let (j0, j1) = (jj.saturating_sub(1), (jj + 1).min(h - 1));
+        // Most pixels lie in a 3 × 3 block of one value (lit, or dark):
+        // compared bit for bit without branches first.
+        let bits = s.to_bits();
+        let uniform = (j0..=j1).fold(true, |all, j| {
+            self.factors[j * w + i0..=j * w + i1]
+                .iter()
+                .fold(all, |all, n| all & (n.to_bits() == bits))
+        });
+        if uniform {
+            return false;
+        }
         (j0..=j1).any(|j| {
             self.factors[j * w + i0..=j * w + i1]
                 .iter()
