@@ -158,10 +158,10 @@ pub fn refine(
                 corners.reset(roi, j);
                 let mut uniform = std::mem::take(&mut corners.uniform);
                 centre.uniform_blocks(j - roi.y0, &mut corners.vertical, &mut uniform);
-                for ii in 0..roi.width() {
+                for (ii, &uniform) in uniform.iter().enumerate() {
                     let s = centre.factors[(j - roi.y0) * roi.width() + ii] as f64;
                     let penumbra = s > 0.0 && s < 1.0;
-                    if (uniform[ii] && !penumbra) || !centre.is_edge(ii, j - roi.y0) {
+                    if (uniform && !penumbra) || !centre.is_edge(ii, j - roi.y0) {
                         continue;
                     }
                     let i = roi.x0 + ii;
