@@ -4,15 +4,12 @@
 //!
 //! A sample's factor is one horizon lookup: the Sun's elevation and
 //! azimuth in the sphere's local frame at the sample, and the lit share
-//! of the solar disk above the relief's horizon there. The angles and the
-//! map position come from [`fastmath`] (±3e-8 rad: 1e-5 of the Sun's
-//! radius, 1e-5 of a 4 ppd map cell), 4–6× cheaper than libm.
+//! of the solar disk above the relief's horizon there.
 
 use glam::DVec3;
 use serde::Serialize;
 
 use super::caps::Frame;
-use crate::radiometry::fastmath;
 use crate::scene::horizon::{HorizonMap, ReliefShadows, ShadowMode};
 
 /// What the per-sample loops need of the horizon map in one frame.
@@ -79,10 +76,8 @@ impl<'a> FrameShadows<'a> {
         if g.sin_e >= self.map.sin_elevation_bound_at(g.x, g.y) {
             return 1.0;
         }
-        let horizon = self
-            .map
-            .elevation_at(g.x, g.y, fastmath::atan2(g.north, g.east));
-        let elevation = fastmath::asin(g.sin_e);
+        let horizon = self.map.elevation_at(g.x, g.y, g.north.atan2(g.east));
+        let elevation = g.sin_e.clamp(-1.0, 1.0).asin();
         if horizon > 0.0 && elevation < horizon {
             0.0
         } else {
@@ -95,10 +90,9 @@ impl<'a> FrameShadows<'a> {
     /// components (east arbitrary at a pole).
     #[inline]
     pub fn geometry(&self, n: DVec3, l: DVec3) -> SunAtPoint {
-        // A unit vector: no overflow for `hypot` to guard against.
-        let rxy = (n.x * n.x + n.y * n.y).sqrt();
-        let lat = fastmath::atan2(n.z, rxy);
-        let lon = fastmath::atan2(n.y, n.x);
+        let rxy = n.x.hypot(n.y);
+        let lat = n.z.atan2(rxy);
+        let lon = n.y.atan2(n.x);
         let (x, y) = self.map.cell_coords(lat, lon);
         let east = if rxy > 1e-12 {
             DVec3::new(-n.y / rxy, n.x / rxy, 0.0)
@@ -129,8 +123,8 @@ impl<'a> FrameShadows<'a> {
         if g.sin_e >= self.map.sin_elevation_bound_at(g.x, g.y) + self.sun_radius {
             return 1.0;
         }
-        let azimuth = fastmath::atan2(g.north, g.east);
-        let elevation = fastmath::asin(g.sin_e);
+        let azimuth = g.north.atan2(g.east);
+        let elevation = g.sin_e.clamp(-1.0, 1.0).asin();
         self.map
             .relief_factor_at(g.x, g.y, azimuth, elevation, self.sun_radius)
     }
@@ -198,8 +192,8 @@ impl SunAngles {
             x: g.x,
             y: g.y,
             sin_e: g.sin_e,
-            elevation: fastmath::asin(g.sin_e),
-            azimuth: fastmath::atan2(g.north, g.east),
+            elevation: g.sin_e.clamp(-1.0, 1.0).asin(),
+            azimuth: g.north.atan2(g.east),
         }
     }
 }
