@@ -246,6 +246,48 @@ fn lattice_shadow_factor_matches_the_exact_factor() {
     }
 }
 
+/// A Hapke body with an albedo map (the bundled Moon's case) has no flux
+/// lattice (Hapke is not quadratic in the albedo), yet its interior pixels
+/// take the Sun from the lattice's nodes: most shadows are interpolated,
+/// and every factor agrees with the exact one as for the Lambert body
+/// (the shadow factor does not depend on the reflectance, so the same
+/// views keep the same edge limits).
+#[test]
+fn hapke_body_interpolates_the_sun_without_the_flux_lattice() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem_path = dir.path().join("rough.tiff");
+    write_f32_tiff(&dem_path, W, H, &rough()).unwrap();
+    let map = HorizonMap::compute(&EquirectMap::load(&dem_path).unwrap(), R, 16);
+    let albedo = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/data/maps/lroc_color_poles_2k.tif"
+    );
+    let hapke = "{ model = \"hapke\", w = 0.3, b = 0.25, c = 0.3, theta_bar = 0.35, h_s = 0.08, b_s0 = 1.0 }";
+    for (alpha, what) in [(95.0, "grazing, equator"), (30.0, "gibbous")] {
+        let mut setup = Setup::new(hapke, alpha, 20.0, 300.0);
+        setup.extra_body = format!(
+            "shadows = {{ dem = \"{}\", scale = 1.0, azimuths = 16, cache_dir = \"{}\", mode = \"always\" }}\nalbedo_map = {{ path = \"{albedo}\", min = 0.16, max = 0.40 }}",
+            dem_path.display(),
+            dir.path().display()
+        );
+        setup.extra_render = "interior = \"pixels\"\nnode_spacing = 4".into();
+        let scene = setup.scene();
+        let mut settings = scene.render.clone();
+        settings.pixel_tolerance = f64::INFINITY;
+        let checked = check_factors(&scene, &settings, &map, R, what);
+        assert_eq!(
+            checked.lattice, 0,
+            "{what}: the flux lattice is off for Hapke"
+        );
+        assert!(
+            checked.shadow_exact * 2 < checked.interior,
+            "{what}, α {alpha}: {} of {} interior shadows took the exact geometry",
+            checked.shadow_exact,
+            checked.interior
+        );
+    }
+}
+
 /// The bundled close-range view (`configs/moon_close_shadows.toml`: the
 /// camera 1.05 R over a pole, the LOLA DEM, an albedo map) turned to
 /// phase 88° as `optistim bench --shadows --phases 88` turns it: the Sun
@@ -294,6 +336,9 @@ struct Checked {
     lattice: usize,
     /// Interior pixels whose shadow came from the polar nodes.
     polar: usize,
+    /// Interior pixels whose shadow took the exact geometry (no Sun
+    /// nodes, or the penumbra).
+    shadow_exact: usize,
 }
 
 /// Renders `scene` with and without its shadows and checks every interior
@@ -384,5 +429,6 @@ fn check_factors(
         interior: plain.interior_pixels,
         lattice,
         polar,
+        shadow_exact: shadowed.interior_direct.shadow_exact,
     }
 }

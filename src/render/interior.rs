@@ -192,8 +192,13 @@ impl InteriorMask {
     ) -> (f64, DirectCounts) {
         let roi = self.roi;
         let w = roi.width();
-        let lattice = (node_spacing > 1 && rays.lattice_applies(frame)).then(|| {
-            self.lattice.build(frame, rays, roi, node_spacing);
+        // The Sun's nodes serve every model (the Sun's geometry is smooth
+        // whatever the reflectance); the flux's nodes only where
+        // `lattice_applies` (a Hapke Moon takes the Sun's alone).
+        let flux_nodes = rays.lattice_applies(frame);
+        let lattice = (node_spacing > 1 && (flux_nodes || frame.shadows.is_some())).then(|| {
+            self.lattice
+                .build(frame, rays, roi, (node_spacing, flux_nodes));
             &self.lattice
         });
         let interior = &self.interior;
@@ -221,13 +226,16 @@ impl InteriorMask {
                 // in the frame loop once warm.
                 COLUMNS.with_borrow_mut(|columns| {
                     SUN_COLUMNS.with_borrow_mut(|sun| {
+                        columns.clear();
                         if let Some(l) = lattice {
-                            l.columns_at_row(
-                                &l.nodes,
-                                (FACTORS_X, l.map_width),
-                                j - roi.y0,
-                                columns,
-                            );
+                            if l.flux {
+                                l.columns_at_row(
+                                    &l.nodes,
+                                    (FACTORS_X, l.map_width),
+                                    j - roi.y0,
+                                    columns,
+                                );
+                            }
                             l.sun_columns_at_row(j - roi.y0, sun);
                         }
                         let mut sum = 0.0;
@@ -251,7 +259,7 @@ impl InteriorMask {
                                 row[i] = 0.0;
                                 continue;
                             }
-                            let interpolated = lattice.and_then(|l| {
+                            let interpolated = lattice.filter(|l| l.flux).and_then(|l| {
                                 l.interpolate_at(columns, (FACTORS_X, l.map_width), ii)
                                     .map(|q| (l, q))
                             });
@@ -380,10 +388,14 @@ impl DirectCounts {
 /// limb (where the midpoint rule is not enough), near a pole (where the
 /// texel coordinates turn fast) or where the model is not quadratic in the
 /// albedo, is evaluated directly. The footprint's texel x is unwrapped
-/// across the map's seam before it is interpolated.
+/// across the map's seam before it is interpolated. The Sun's nodes (cast
+/// shadows) depend on the geometry alone and are built for every model.
 #[derive(Default)]
 struct Lattice {
     step: usize,
+    /// Whether `nodes` hold the flux's factors (else only the Sun's nodes
+    /// are built, and `nodes` is empty).
+    flux: bool,
     cols: usize,
     /// Node (m, n) at pixel centre (x0 + (m − 1) step, y0 + (n − 1) step)
     /// of the ROI; `None` where it may not be used.
@@ -500,8 +512,11 @@ const SUN_SIN_E: usize = 2;
 const POLAR_SIN_E: usize = polar_sun::SIN_E;
 
 impl Lattice {
-    fn build(&mut self, frame: &Frame, rays: &PixelRays, roi: Rect, step: usize) {
+    /// The lattice of `roi` every `step` pixels: the Sun's nodes when the
+    /// frame casts relief shadows, the flux's where `flux`.
+    fn build(&mut self, frame: &Frame, rays: &PixelRays, roi: Rect, (step, flux): (usize, bool)) {
         self.step = step;
+        self.flux = flux;
         self.cols = (roi.width() - 1) / step + 4;
         let rows = (roi.height() - 1) / step + 4;
         self.map_width = frame
@@ -516,10 +531,13 @@ impl Lattice {
         self.column_of
             .extend((0..roi.width()).map(|ii| (ii / step + 1, ii % step)));
         self.nodes.clear();
-        self.nodes.resize(self.cols * rows, None);
         let origin_u = roi.x0 as f64 + 0.5 - step as f64;
         let origin_v = roi.y0 as f64 + 0.5 - step as f64;
         self.build_sun_nodes(frame, rays, rows, (origin_u, origin_v));
+        if !flux {
+            return;
+        }
+        self.nodes.resize(self.cols * rows, None);
         // Nodes hold the smooth factors: a cast shadow is not smooth, so
         // each pixel applies its own (`Lattice::relief_shadow`).
         let frame = &Frame {
@@ -1012,7 +1030,7 @@ impl PixelRays {
         }
     }
 
-    /// Whether interior pixels may interpolate a [`Lattice`]: no occulter
+    /// Whether interior pixels may interpolate a [`Lattice`]'s flux: no occulter
     /// (its penumbra is not smooth), no parameter maps (the model's terms
     /// then vary per point), and without an albedo map any model, with one
     /// a model quadratic in the albedo.

@@ -72,8 +72,37 @@ impl CentreFactors {
         self.factors.par_chunks_mut(row)
     }
 
+    /// For each pixel of ROI row `jj`, whether its 3 × 3 block (clamped
+    /// to the ROI, as in [`Self::is_edge`]) holds one value bit for bit:
+    /// such a pixel (most of them: lit, dark, or off the disk) is no edge
+    /// unless its factor lies in the penumbra.
+    /// Per row, in passes the compiler vectorises: `vertical` (scratch)
+    /// marks the columns whose three rows agree.
+    fn uniform_blocks(&self, jj: usize, vertical: &mut Vec<bool>, out: &mut Vec<bool>) {
+        let (w, h) = (self.roi.width(), self.roi.height());
+        let row = |j: usize| &self.factors[j * w..(j + 1) * w];
+        let (a, b, c) = (row(jj.saturating_sub(1)), row(jj), row((jj + 1).min(h - 1)));
+        vertical.clear();
+        vertical.extend(
+            a.iter()
+                .zip(b)
+                .zip(c)
+                .map(|((x, y), z)| x.to_bits() == y.to_bits() && z.to_bits() == y.to_bits()),
+        );
+        out.clear();
+        out.extend((0..w).map(|ii| {
+            let (i0, i1) = (ii.saturating_sub(1), (ii + 1).min(w - 1));
+            vertical[i0]
+                & vertical[ii]
+                & vertical[i1]
+                & (b[i0].to_bits() == b[ii].to_bits())
+                & (b[i1].to_bits() == b[ii].to_bits())
+        }));
+    }
+
     /// Whether ROI pixel (ii, jj) is a shadow edge: its factor in the
     /// penumbra, or an interior neighbour's different.
+    #[inline]
     fn is_edge(&self, ii: usize, jj: usize) -> bool {
         let (w, h) = (self.roi.width(), self.roi.height());
         let s = self.factors[jj * w + ii];
@@ -127,12 +156,15 @@ pub fn refine(
             let (mut delta, mut edges) = (0.0, 0usize);
             CORNERS.with_borrow_mut(|corners| {
                 corners.reset(roi, j);
-                for ii in 0..roi.width() {
-                    if !centre.is_edge(ii, j - roi.y0) {
+                let mut uniform = std::mem::take(&mut corners.uniform);
+                centre.uniform_blocks(j - roi.y0, &mut corners.vertical, &mut uniform);
+                for (ii, &uniform) in uniform.iter().enumerate() {
+                    let s = centre.factors[(j - roi.y0) * roi.width() + ii] as f64;
+                    let penumbra = s > 0.0 && s < 1.0;
+                    if (uniform && !penumbra) || !centre.is_edge(ii, j - roi.y0) {
                         continue;
                     }
                     let i = roi.x0 + ii;
-                    let s = centre.factors[(j - roi.y0) * roi.width() + ii] as f64;
                     let sun = corners.pixel(frame, shadows, pixels, ii);
                     let Some(mean) = mean_factor(frame, shadows, pixels, (i, j), s, sun) else {
                         continue;
@@ -147,6 +179,7 @@ pub fn refine(
                     row[i] = new as f32;
                     edges += 1;
                 }
+                corners.uniform = uniform;
             });
             (delta, edges)
         })
@@ -177,7 +210,15 @@ const CENTRE_SPAN_SHARE: f64 = 0.02;
 thread_local! {
     /// A row's pixel-corner Suns ([`CornerRows`]), kept between frames.
     static CORNERS: RefCell<CornerRows> = const {
-        RefCell::new(CornerRows { top: Vec::new(), bottom: Vec::new(), row: 0, x0: 0, j: 0 })
+        RefCell::new(CornerRows {
+            top: Vec::new(),
+            bottom: Vec::new(),
+            row: 0,
+            x0: 0,
+            j: 0,
+            vertical: Vec::new(),
+            uniform: Vec::new(),
+        })
     };
 }
 
@@ -193,6 +234,10 @@ struct CornerRows {
     row: u64,
     x0: usize,
     j: usize,
+    /// Scratch of [`CentreFactors::uniform_blocks`] for the row.
+    vertical: Vec<bool>,
+    /// The row's pixels whose 3 × 3 block is uniform (no edge).
+    uniform: Vec<bool>,
 }
 
 impl CornerRows {
