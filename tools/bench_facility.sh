@@ -33,8 +33,11 @@ if [ "$per_frame" != 1 ] || [ "$block" != 1 ] || [ -n "$tol" ]; then
   scene_dir=$PWD/configs
   if [ -n "$tol" ]; then
     scene_dir=$PWD/out/bench
-    sed -e "s#\"\.\./data#\"$PWD/data#" configs/moon.toml > "$scene_dir/moon.toml"
-    printf '\n[render]\npixel_tolerance = %s\n' "$tol" >> "$scene_dir/moon.toml"
+    # The benchmark's own scene (named in its config), paths made absolute.
+    scene=$(sed -n 's/^scene = "\(.*\)"/\1/p' configs/bench_facility_$screen.toml)
+    sed -e "s#\"\.\./data#\"$PWD/data#" -e "s#file = \"bodies/#file = \"$PWD/configs/bodies/#" \
+      "configs/$scene" > "$scene_dir/$scene"
+    printf '\n[render]\npixel_tolerance = %s\n' "$tol" >> "$scene_dir/$scene"
   fi
   sed -e "s#^scene = \"#scene = \"$scene_dir/#" -e "s#\"\.\./calib#\"$PWD/calib#" \
       -e "s#^\[timing\]#[timing]\nrefreshes_per_frame = $per_frame#" \

@@ -35,8 +35,10 @@ SHADOWS = ('shadows = { dem = "%s/data/maps/ldem_4.tif", scale = 1000.0, '
 
 
 def scene_file(tmp, shadows):
-    """configs/moon.toml, paths absolute, with or without the shadows."""
-    text = open(os.path.join(ROOT, "configs", "moon.toml")).read()
+    """configs/moon_plain.toml (the facility's scene: the bundled Moon
+    without its relief), paths absolute, with or without the shadows."""
+    text = open(os.path.join(ROOT, "configs", "moon_plain.toml")).read()
+    assert "\nshadows =" not in text, "moon_plain.toml has gained a relief"
     text = text.replace('"../data', f'"{ROOT}/data')
     text = text.replace('file = "bodies/', f'file = "{ROOT}/configs/bodies/')
     if shadows:
@@ -50,7 +52,9 @@ def facility_file(tmp, scene, tag):
     """configs/facility.toml with the governor off and `scene` (the
     governor benchmark's file, its scene replaced)."""
     text = open(bench_governor.facility_file("off", tmp)).read()
-    text = text.replace(f'scene = "{ROOT}/configs/moon.toml"', f'scene = "{scene}"')
+    old = f'scene = "{ROOT}/configs/moon_plain.toml"'
+    assert old in text, "configs/facility.toml no longer renders moon_plain.toml"
+    text = text.replace(old, f'scene = "{scene}"')
     path = os.path.join(tmp, f"facility_{tag}.toml")
     open(path, "w").write(text)
     return path
